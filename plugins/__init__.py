@@ -1,0 +1,1 @@
+"""Aiding sources (plugins) for shearer-fusion."""
