@@ -20,6 +20,9 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+FloatOrArray = float | NDArray[np.float64]
+"""A scalar, or an array evaluated element-wise."""
+
 A = 6378137.0
 """Semi-major axis (m)."""
 F = 1.0 / 298.257223563
@@ -40,7 +43,7 @@ GRAVITY_M = OMEGA_IE**2 * A**2 * B / GM
 """The ratio m = ω² a² b / GM of TR8350.2."""
 
 
-def radii(lat: float) -> tuple[float, float]:
+def radii(lat: FloatOrArray) -> tuple[FloatOrArray, FloatOrArray]:
     """Return the meridian radius ``R_M`` and the prime-vertical radius ``R_N`` (m) at ``lat``."""
     s = np.sin(lat)
     w2 = 1.0 - E2 * s * s
@@ -48,7 +51,7 @@ def radii(lat: float) -> tuple[float, float]:
     return A * (1.0 - E2) / (w2 * w), A / w
 
 
-def normal_gravity(lat: float, height: float) -> float:
+def normal_gravity(lat: FloatOrArray, height: FloatOrArray) -> FloatOrArray:
     """WGS84 normal gravity magnitude (m/s²) at geodetic latitude ``lat`` (rad), ``height`` (m)."""
     s2 = np.sin(lat) ** 2
     gamma0 = GAMMA_E * (1.0 + GAMMA_K * s2) / np.sqrt(1.0 - E2 * s2)
