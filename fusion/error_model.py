@@ -1,0 +1,394 @@
+"""Error-state model of the SINS: state layout, dynamics F, process noise Q and discretization.
+
+Conventions (seed 000 eq. 11; PSINS/Qin's φ-angle model, ENU):
+
+* ``δv = ṽ − v`` (m/s, local-level ENU);
+* ``φ``: ``C̃_b^n = (I − φ×) C_b^n`` (rad), the misalignment of the computed n-frame;
+* ``δp = [δE, δN, δU]`` (m), the position error in local metres:
+  ``δE = (R_N+h) cos L δλ``, ``δN = (R_M+h) δL``, ``δU = δh`` (metres keep P well conditioned;
+  geodetic angle errors of 1e-8 rad would not);
+* ``ε^b``, ``∇^b``: residual gyro and accelerometer biases, estimate minus truth of the error the
+  SINS still carries after the compensation it applies (``ω̂ = ω + ε``, ``f̂ = f + ∇``).
+
+Dynamics (seed 000 eqs. 13–15 with the velocity-dependent terms the seed drops restored)::
+
+    φ̇  = −ω_in^n × φ + M_av δv + M_ap δp − C_b^n ε
+    δv̇ = f^n × φ + [v× M_av − (2ω_ie^n + ω_en^n)×] δv + [v× (2M_1 + M_2) + ∂g] δp + C_b^n ∇
+    δṗ = δv + F_pp δp
+    ε̇  = −ε/τ_g + w_g,   ∇̇ = −∇/τ_a + w_a       (τ = ∞: random constant)
+
+with ``M_av``, ``M_1``, ``M_2`` the partials of ``ω_in^n`` with respect to velocity and latitude /
+height (Qin, *Kalman Filtering and Integrated Navigation*, ch. 4, the seed's ref. 5), rewritten
+for metre position errors: a geodetic column ``∂/∂L`` becomes ``∂/∂N = ∂/∂L / (R_M+h)``, and
+``F_pp = T M_pp T⁻¹ + Ṫ T⁻¹`` with ``T = ∂(δE, δN, δU)/∂(δL, δλ, δh)``, which gives::
+
+    F_pp = [[v_U/(R_N+h) − v_N tanL/(R_M+h), v_E tanL/(R_M+h), −v_E/(R_N+h)],
+            [0,                              v_U/(R_M+h),      −v_N/(R_M+h)],
+            [0,                              0,                 0          ]]
+
+``∂g`` is the normal-gravity gradient (``δg_U = −∂γ/∂L δL − ∂γ/∂h δh``; the height term,
++3.1e-6 s⁻², is what makes the free vertical channel unstable). The option ``low_speed`` is the
+seed's simplified eq. 13: ``φ̇ = −ω_ie×φ − Cε``, ``δv̇ = −2ω_ie×δv + f×φ + C∇``, ``δṗ = δv``.
+
+Process noise from datasheet units (seed 000 Appendix A): ARW deg/√h → rad/√s (× π/180/60),
+VRW as a noise density mg/√Hz → m/s/√s (× 1e-3 g₀), biases deg/h → rad/s, mg → m/s². A
+Gauss–Markov bias of steady σ and correlation time τ has ``q = 2σ²/τ``. The white noise enters
+through ``−C_b^n`` (attitude) and ``C_b^n`` (velocity).
+
+Discretization over a covariance step Δt: ``series`` (default) uses
+``Φ = I + FΔt + (FΔt)²/2 + (FΔt)³/6`` (third order: position ← attitude ← gyro bias is a
+three-integration path) and ``Q_d = QΔt + (FQ + QFᵀ)Δt²/2 + FQFᵀΔt³/3``; ``van_loan`` uses
+the exact matrix exponential of ``[[−F, Q], [0, Fᵀ]] Δt``.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass, field
+from typing import Literal
+
+import numba
+import numpy as np
+import scipy.linalg
+from numpy.typing import NDArray
+
+from fusion import earth
+from fusion.strapdown import HGT, LAT, VEL
+
+G0 = 9.80665
+"""Standard gravity used by datasheets for mg (m/s²)."""
+DEG = math.pi / 180.0
+
+VELOCITY, ATTITUDE, POSITION, GYRO_BIAS, ACCEL_BIAS = (
+    "velocity",
+    "attitude",
+    "position",
+    "gyro_bias",
+    "accel_bias",
+)
+COMMON_BLOCKS = (VELOCITY, ATTITUDE, POSITION, GYRO_BIAS, ACCEL_BIAS)
+N_COMMON = 15
+
+
+@dataclass(frozen=True)
+class StateBlock:
+    """A named group of error states with its own prior and (for plugin states) dynamics.
+
+    Parameters
+    ----------
+    name
+        Unique name, e.g. ``"odometer.scale_error"``.
+    labels
+        One label per state (for tables and plots).
+    initial_sigma
+        Prior 1-σ of each state (SI units).
+    noise_density
+        Continuous process-noise density (σ² per second) of each state; 0 for a constant.
+    correlation_time_s
+        First-order Gauss–Markov correlation time, or ``None`` for a random walk / constant.
+    """
+
+    name: str
+    labels: tuple[str, ...]
+    initial_sigma: tuple[float, ...]
+    noise_density: tuple[float, ...] = ()
+    correlation_time_s: float | None = None
+
+    @property
+    def size(self) -> int:
+        """Number of states."""
+        return len(self.labels)
+
+
+@dataclass(frozen=True)
+class StateLayout:
+    """Ordered state blocks: the 15 common SINS error states first, then those of plugins."""
+
+    blocks: tuple[StateBlock, ...]
+    _slices: dict[str, slice] = field(init=False, repr=False, compare=False)
+
+    def __post_init__(self) -> None:
+        slices: dict[str, slice] = {}
+        start = 0
+        for block in self.blocks:
+            if block.name in slices:
+                raise ValueError(f"state block {block.name!r} is declared twice")
+            slices[block.name] = slice(start, start + block.size)
+            start += block.size
+        object.__setattr__(self, "_slices", slices)
+
+    @property
+    def dim(self) -> int:
+        """Total number of states."""
+        return sum(b.size for b in self.blocks)
+
+    def slice(self, name: str) -> slice:
+        """Index range of block ``name``."""
+        try:
+            return self._slices[name]
+        except KeyError:
+            raise KeyError(
+                f"no state block {name!r}; the layout has {list(self._slices)}"
+            ) from None
+
+    def __contains__(self, name: object) -> bool:
+        return name in self._slices
+
+    def extended(self, blocks: Iterable[StateBlock]) -> StateLayout:
+        """A new layout with ``blocks`` appended."""
+        return StateLayout((*self.blocks, *blocks))
+
+    @property
+    def labels(self) -> list[str]:
+        """Full label of every state, ``block.label``."""
+        return [f"{b.name}.{lab}" for b in self.blocks for lab in b.labels]
+
+    def initial_covariance(self) -> NDArray[np.float64]:
+        """Diagonal prior covariance."""
+        return np.diag(np.concatenate([np.square(b.initial_sigma) for b in self.blocks]))
+
+
+@dataclass(frozen=True)
+class ImuNoise:
+    """IMU error figures in SI units.
+
+    Parameters
+    ----------
+    gyro_arw
+        Angle random walk (rad/√s).
+    accel_vrw
+        Velocity random walk (m/s/√s).
+    gyro_bias, accel_bias
+        1-σ bias at start (rad/s, m/s²): prior of the bias states.
+    gyro_bias_instability, accel_bias_instability
+        Steady σ of the Gauss–Markov part (rad/s, m/s²); 0 for a random constant.
+    bias_correlation_time_s
+        Gauss–Markov correlation time.
+    """
+
+    gyro_arw: float
+    accel_vrw: float
+    gyro_bias: float
+    accel_bias: float
+    gyro_bias_instability: float = 0.0
+    accel_bias_instability: float = 0.0
+    bias_correlation_time_s: float = 3600.0
+
+    @classmethod
+    def from_datasheet(
+        cls,
+        *,
+        gyro_arw_deg_rth: float,
+        accel_vrw_mg_rthz: float,
+        gyro_bias_deg_h: float,
+        accel_bias_mg: float,
+        gyro_bias_instability_deg_h: float = 0.0,
+        accel_bias_instability_mg: float = 0.0,
+        bias_correlation_time_s: float = 3600.0,
+    ) -> ImuNoise:
+        """Convert datasheet units (deg/√h, mg/√Hz, deg/h, mg) to SI."""
+        return cls(
+            gyro_arw=gyro_arw_deg_rth * DEG / 60.0,
+            accel_vrw=accel_vrw_mg_rthz * 1e-3 * G0,
+            gyro_bias=gyro_bias_deg_h * DEG / 3600.0,
+            accel_bias=accel_bias_mg * 1e-3 * G0,
+            gyro_bias_instability=gyro_bias_instability_deg_h * DEG / 3600.0,
+            accel_bias_instability=accel_bias_instability_mg * 1e-3 * G0,
+            bias_correlation_time_s=bias_correlation_time_s,
+        )
+
+
+def common_blocks(
+    imu: ImuNoise,
+    sigma_velocity: Sequence[float],
+    sigma_attitude: Sequence[float],
+    sigma_position: Sequence[float],
+) -> tuple[StateBlock, ...]:
+    """The 15 common error-state blocks with their priors (SI units)."""
+    xyz = ("x", "y", "z")
+    enu = ("e", "n", "u")
+    tau = imu.bias_correlation_time_s
+    gm = imu.gyro_bias_instability > 0 or imu.accel_bias_instability > 0
+    return (
+        StateBlock(VELOCITY, enu, tuple(sigma_velocity)),
+        StateBlock(ATTITUDE, enu, tuple(sigma_attitude)),
+        StateBlock(POSITION, enu, tuple(sigma_position)),
+        StateBlock(
+            GYRO_BIAS,
+            xyz,
+            (imu.gyro_bias,) * 3,
+            (2.0 * imu.gyro_bias_instability**2 / tau,) * 3,
+            tau if gm else None,
+        ),
+        StateBlock(
+            ACCEL_BIAS,
+            xyz,
+            (imu.accel_bias,) * 3,
+            (2.0 * imu.accel_bias_instability**2 / tau,) * 3,
+            tau if gm else None,
+        ),
+    )
+
+
+_radii = numba.njit(cache=True)(earth.radii)
+_gravity_dlat = numba.njit(cache=True)(earth.normal_gravity_latitude_gradient)
+_gravity_dh = numba.njit(cache=True)(earth.normal_gravity_height_gradient)
+
+
+@numba.njit(cache=True)
+def _skew(v: NDArray[np.float64]) -> NDArray[np.float64]:
+    return np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
+
+
+@numba.njit(cache=True)
+def _fill_sins_dynamics(
+    f: NDArray[np.float64],
+    nav: NDArray[np.float64],
+    f_n: NDArray[np.float64],
+    c_b_n: NDArray[np.float64],
+    full: bool,
+) -> None:
+    """Write the 15×15 SINS block of F (velocity, attitude, position, biases) into ``f``."""
+    v = nav[VEL : VEL + 3]
+    lat, h = nav[LAT], nav[HGT]
+    rm, rn = _radii(lat)
+    rmh, rnh = rm + h, rn + h
+    sl, cl = math.sin(lat), math.cos(lat)
+    tl = sl / cl
+    wie = earth.OMEGA_IE
+    w_ie = np.array([0.0, wie * cl, wie * sl])
+    w_en = np.array([-v[1] / rmh, v[0] / rnh, v[0] * tl / rnh])
+    for i in range(3):
+        for j in range(3):
+            f[3 + i, 9 + j] = -c_b_n[i, j]
+            f[0 + i, 12 + j] = c_b_n[i, j]
+            f[6 + i, 0 + j] = 1.0 if i == j else 0.0
+    f[0:3, 3:6] = _skew(f_n)
+    if not full:
+        f[3:6, 3:6] = -_skew(w_ie)
+        f[0:3, 0:3] = -2.0 * _skew(w_ie)
+        return
+    # Partials of ω_in^n: M_av (velocity), M_1 (latitude, earth rate), M_2 (latitude, height).
+    m_av = np.zeros((3, 3))
+    m_av[0, 1] = -1.0 / rmh
+    m_av[1, 0] = 1.0 / rnh
+    m_av[2, 0] = tl / rnh
+    m_1 = np.zeros((3, 3))
+    m_1[1, 0] = -wie * sl
+    m_1[2, 0] = wie * cl
+    m_2 = np.zeros((3, 3))
+    m_2[0, 2] = v[1] / rmh**2
+    m_2[1, 2] = -v[0] / rnh**2
+    m_2[2, 0] = v[0] / (cl * cl) / rnh
+    m_2[2, 2] = -v[0] * tl / rnh**2
+    # Geodetic (δL, δλ, δh) columns → metre (δE, δN, δU) columns:
+    # E ← λ/((R_N+h)cosL), N ← L/(R_M+h).
+    to_metres = np.zeros((3, 3))
+    to_metres[1, 0] = 1.0 / (rnh * cl)
+    to_metres[0, 1] = 1.0 / rmh
+    to_metres[2, 2] = 1.0
+    v_skew = _skew(v)
+    f[3:6, 3:6] = -_skew(w_ie + w_en)
+    f[3:6, 0:3] = m_av
+    f[3:6, 6:9] = (m_1 + m_2) @ to_metres
+    f[0:3, 0:3] = v_skew @ m_av - _skew(2.0 * w_ie + w_en)
+    m_vp = v_skew @ (2.0 * m_1 + m_2)
+    m_vp[2, 0] -= _gravity_dlat(lat, h)
+    m_vp[2, 2] -= _gravity_dh(lat, h)
+    f[0:3, 6:9] = m_vp @ to_metres
+    f[6, 6] = v[2] / rnh - v[1] * tl / rmh
+    f[6, 7] = v[0] * tl / rmh
+    f[6, 8] = -v[0] / rnh
+    f[7, 7] = v[2] / rmh
+    f[7, 8] = -v[1] / rmh
+
+
+class ErrorModel:
+    """Continuous dynamics and discretization over a whole :class:`StateLayout`.
+
+    Parameters
+    ----------
+    layout
+        The filter's states; the five common blocks must come first.
+    imu
+        IMU noise figures (white-noise densities drive velocity and attitude).
+    form
+        ``"full"`` or the seed's ``"low_speed"`` simplification.
+    discretization
+        ``"series"`` or ``"van_loan"``.
+    """
+
+    def __init__(
+        self,
+        layout: StateLayout,
+        imu: ImuNoise,
+        *,
+        form: Literal["full", "low_speed"] = "full",
+        discretization: Literal["series", "van_loan"] = "series",
+    ) -> None:
+        if tuple(b.name for b in layout.blocks[:5]) != COMMON_BLOCKS:
+            raise ValueError(f"the layout must start with the common blocks {COMMON_BLOCKS}")
+        self.layout = layout
+        self.imu = imu
+        self.full = form == "full"
+        self.discretization = discretization
+        n = layout.dim
+        # Parts of F and Q that do not depend on the navigation state.
+        self._f_static = np.zeros((n, n))
+        self._q_static = np.zeros(n)
+        for block in layout.blocks[3:]:
+            s = layout.slice(block.name)
+            if block.correlation_time_s is not None:
+                self._f_static[s, s] = -np.eye(block.size) / block.correlation_time_s
+            if block.noise_density:
+                self._q_static[s] = block.noise_density
+        self._f = np.zeros((n, n))
+
+    def continuous(
+        self, nav: NDArray[np.float64], f_n: NDArray[np.float64], c_b_n: NDArray[np.float64]
+    ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """``F`` and the state-space noise density ``Q`` (n×n) at a nominal state."""
+        f = self._f
+        f[:] = self._f_static
+        _fill_sins_dynamics(f, nav, f_n, c_b_n, self.full)
+        q = np.diag(self._q_static)
+        q[0:3, 0:3] = self.imu.accel_vrw**2 * np.eye(3)
+        q[3:6, 3:6] = self.imu.gyro_arw**2 * np.eye(3)
+        return f.copy(), q
+
+    def discrete(
+        self,
+        nav: NDArray[np.float64],
+        f_n: NDArray[np.float64],
+        c_b_n: NDArray[np.float64],
+        dt: float,
+    ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """Transition matrix Φ and process noise Q_d over ``dt``."""
+        f, q = self.continuous(nav, f_n, c_b_n)
+        return discretize(f, q, dt, self.discretization)
+
+
+def discretize(
+    f: NDArray[np.float64],
+    q: NDArray[np.float64],
+    dt: float,
+    method: Literal["series", "van_loan"] = "series",
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Discretize ``ẋ = F x + w``, ``E[w wᵀ] = Q δ(t)`` over ``dt`` (see module docstring)."""
+    n = f.shape[0]
+    if method == "van_loan":
+        m = np.zeros((2 * n, 2 * n))
+        m[:n, :n] = -f
+        m[:n, n:] = q
+        m[n:, n:] = f.T
+        e = scipy.linalg.expm(m * dt)
+        phi = e[n:, n:].T
+        qd = phi @ e[:n, n:]
+        return phi, 0.5 * (qd + qd.T)
+    fdt = f * dt
+    fdt2 = fdt @ fdt
+    phi = np.eye(n) + fdt + fdt2 / 2.0 + fdt2 @ fdt / 6.0
+    fq = f @ q
+    qd = q * dt + 0.5 * (fq + fq.T) * dt**2 + (fq @ f.T) * dt**3 / 3.0
+    return phi, qd

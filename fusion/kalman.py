@@ -1,0 +1,115 @@
+"""Kalman filter core: prediction, Cholesky-gain Joseph-form update, gating, whitened innovations.
+
+For a measurement ``z = H x + v``, ``v ~ N(0, R)`` the update computes ::
+
+    S = H P Hᵀ + R = L Lᵀ            (Cholesky)
+    K = P Hᵀ S⁻¹                      (two triangular solves, no explicit inverse)
+    ν = z − H x,  ν_w = L⁻¹ ν,  NIS = ν_wᵀ ν_w ~ χ²(m) when the filter is consistent
+    x ← x + K ν
+    P ← (I − K H) P (I − K H)ᵀ + K R Kᵀ   (Joseph form, symmetric and PSD by construction)
+
+A measurement whose NIS exceeds the χ² quantile of the configured probability is rejected
+(gating is off unless a probability is given). Prediction is ``x ← Φ x``, ``P ← Φ P Φᵀ + Q_d``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from functools import lru_cache
+
+import numpy as np
+import scipy.linalg
+import scipy.stats
+from numpy.typing import NDArray
+
+
+@lru_cache(maxsize=256)
+def chi2_threshold(dof: int, probability: float) -> float:
+    """χ² quantile: the NIS below which a consistent measurement falls with ``probability``."""
+    return float(scipy.stats.chi2.ppf(probability, dof))
+
+
+@dataclass(frozen=True)
+class UpdateResult:
+    """Outcome of one measurement update.
+
+    Attributes
+    ----------
+    accepted
+        False when the gate rejected the measurement (the state is then unchanged).
+    innovation
+        ``z − H x`` before the update.
+    whitened
+        ``L⁻¹ ν`` with ``S = L Lᵀ``: unit-covariance components when the filter is consistent.
+    nis
+        Normalized innovation squared ``νᵀ S⁻¹ ν``.
+    threshold
+        Gate threshold used, or ``None`` when gating is off.
+    """
+
+    accepted: bool
+    innovation: NDArray[np.float64]
+    whitened: NDArray[np.float64]
+    nis: float
+    threshold: float | None
+
+    @property
+    def dof(self) -> int:
+        """Degrees of freedom (measurement dimension)."""
+        return int(self.innovation.shape[0])
+
+
+class KalmanFilter:
+    """Linear Kalman filter on an error state.
+
+    Parameters
+    ----------
+    x
+        Initial state (n,).
+    p
+        Initial covariance (n, n).
+    """
+
+    def __init__(self, x: NDArray[np.float64], p: NDArray[np.float64]) -> None:
+        self.x = np.array(x, dtype=float)
+        self.P = np.array(p, dtype=float)
+
+    @property
+    def dim(self) -> int:
+        """State dimension."""
+        return int(self.x.shape[0])
+
+    def predict(self, phi: NDArray[np.float64], qd: NDArray[np.float64]) -> None:
+        """Time update with transition ``phi`` and discrete process noise ``qd``."""
+        self.x = phi @ self.x
+        p = phi @ self.P @ phi.T + qd
+        self.P = 0.5 * (p + p.T)
+
+    def update(
+        self,
+        z: NDArray[np.float64],
+        h: NDArray[np.float64],
+        r: NDArray[np.float64],
+        gate_probability: float | None = None,
+    ) -> UpdateResult:
+        """Measurement update (see module docstring); ``z`` (m,), ``h`` (m, n), ``r`` (m, m)."""
+        z = np.atleast_1d(np.asarray(z, dtype=float))
+        h = np.atleast_2d(h)
+        r = np.atleast_2d(r)
+        ph_t = self.P @ h.T
+        s = h @ ph_t + r
+        chol = scipy.linalg.cho_factor(s, lower=True, check_finite=False)
+        nu = z - h @ self.x
+        whitened = scipy.linalg.solve_triangular(chol[0], nu, lower=True, check_finite=False)
+        nis = float(whitened @ whitened)
+        threshold = None
+        if gate_probability is not None:
+            threshold = chi2_threshold(len(z), gate_probability)
+            if nis > threshold:
+                return UpdateResult(False, nu, whitened, nis, threshold)
+        gain = scipy.linalg.cho_solve(chol, ph_t.T, check_finite=False).T
+        self.x = self.x + gain @ nu
+        i_kh = np.eye(self.dim) - gain @ h
+        p = i_kh @ self.P @ i_kh.T + gain @ r @ gain.T
+        self.P = 0.5 * (p + p.T)
+        return UpdateResult(True, nu, whitened, nis, threshold)
