@@ -1,0 +1,231 @@
+"""The ``fusion`` command: run, validate, validate-config, simulate, sim-plot, demo, plugins."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from collections.abc import Sequence
+from pathlib import Path
+
+EXAMPLES = """\
+examples:
+  fusion demo --out out/demo
+      simulate the default longwall recording, fuse it, write solution, metrics and plots
+  fusion simulate --list
+  fusion simulate longwall-200m rec/ --seed 3 --set motion.vibration=false
+  fusion validate rec/
+  fusion run --config configs/sins_only.yaml --recording rec/ --out out/
+  fusion validate-config configs/sins_only.yaml
+"""
+
+DEFAULT_DEMO_SCENARIO = "seed000-carrier"
+DEFAULT_DEMO_CONFIG = "sins_only"
+
+
+class _Progress:
+    """A one-line progress bar on stderr, shown only for runs longer than a few seconds."""
+
+    def __init__(self, enabled: bool) -> None:
+        self.enabled = enabled and sys.stderr.isatty()
+        self.start = time.perf_counter()
+        self.shown = False
+
+    def __call__(self, fraction: float) -> None:
+        elapsed = time.perf_counter() - self.start
+        if not self.enabled or (elapsed < 3.0 and not self.shown):
+            return
+        self.shown = True
+        bar = "#" * int(40 * fraction)
+        eta = elapsed / max(fraction, 1e-9) - elapsed
+        sys.stderr.write(f"\r[{bar:<40}] {100 * fraction:5.1f}%  eta {eta:5.0f} s")
+        sys.stderr.flush()
+
+    def close(self) -> None:
+        if self.shown:
+            sys.stderr.write("\n")
+
+
+def _find_config(name_or_path: str) -> Path:
+    """A config path as given, or ``configs/NAME.yaml`` in the working tree or the repository."""
+    path = Path(name_or_path)
+    if path.exists():
+        return path
+    for root in (Path.cwd(), Path(__file__).resolve().parents[1]):
+        candidate = root / "configs" / f"{name_or_path}.yaml"
+        if candidate.exists():
+            return candidate
+    return path
+
+
+def _cmd_run(args: argparse.Namespace) -> int:
+    from fusion.config import load_config
+    from fusion.engine import Engine
+    from fusion.outputs import summary, write_outputs
+    from fusion.recording import read_recording
+
+    config = load_config(_find_config(args.config))
+    recording = read_recording(args.recording, bridge_imu_gaps=config.bridge_imu_gaps)
+    engine = Engine(config, recording)
+    if args.check:
+        print(f"{args.config}: valid; states: {', '.join(engine.layout.labels)}")
+        return 0
+    progress = _Progress(not args.quiet)
+    result = engine.run(progress)
+    progress.close()
+    files = write_outputs(
+        result, recording, args.out, plots=config.output.plots and not args.no_plots
+    )
+    if not args.quiet:
+        print(summary(result, recording))
+        print("wrote      " + ", ".join(str(p) for p in files.values()))
+    return 0
+
+
+def _cmd_validate(args: argparse.Namespace) -> int:
+    from fusion.recording import validate_recording
+
+    problems = validate_recording(args.recording)
+    for p in problems:
+        print(str(p))
+    if problems:
+        print(f"{args.recording}: {len(problems)} problem(s)")
+        return 1
+    print(f"{args.recording}: valid shearer-recording/1")
+    return 0
+
+
+def _cmd_validate_config(args: argparse.Namespace) -> int:
+    from fusion.config import load_config
+
+    config = load_config(_find_config(args.config))
+    print(f"{args.config}: valid ({config.name}, {len(config.plugins)} plugin(s))")
+    return 0
+
+
+def _cmd_simulate(args: argparse.Namespace) -> int:
+    from fusion.sim.simulate import list_scenarios, simulate
+
+    if args.list:
+        for name, description in list_scenarios():
+            print(f"{name:32s} {description}")
+        return 0
+    if args.scenario is None or args.out is None:
+        raise SystemExit("fusion simulate: give SCENARIO and OUT (or --list)")
+    path = simulate(args.scenario, args.out, seed=args.seed, overrides=args.set)
+    print(f"wrote recording {path}")
+    return 0
+
+
+def _cmd_sim_plot(args: argparse.Namespace) -> int:
+    from fusion.sim.plot import plot_truth
+
+    plot_truth(args.recording, args.out)
+    print(f"wrote {args.out}")
+    return 0
+
+
+def _cmd_demo(args: argparse.Namespace) -> int:
+    out = Path(args.out)
+    recording = out / "recording"
+    _cmd_simulate(
+        argparse.Namespace(
+            list=False, scenario=args.scenario, out=recording, seed=args.seed, set=args.set
+        )
+    )
+    return _cmd_run(
+        argparse.Namespace(
+            config=args.config,
+            recording=recording,
+            out=out / "result",
+            check=False,
+            quiet=False,
+            no_plots=False,
+        )
+    )
+
+
+def _cmd_plugins(args: argparse.Namespace) -> int:
+    from fusion.plugin import available_plugins
+
+    for name, cls in sorted(available_plugins().items()):
+        doc = (cls.__doc__ or "").strip().splitlines()
+        print(f"{name:20s} {doc[0] if doc else ''}")
+    return 0
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The argument parser of the ``fusion`` command."""
+    parser = argparse.ArgumentParser(
+        prog="fusion",
+        description="Longwall shearer positioning: SINS fused with pluggable aiding sources.",
+        epilog=EXAMPLES,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    sub = parser.add_subparsers(dest="command", required=True)
+
+    run = sub.add_parser("run", help="fuse a recording with a configuration")
+    run.add_argument("--config", required=True, help="YAML config (path or name in configs/)")
+    run.add_argument("--recording", required=True, help="recording directory")
+    run.add_argument("--out", required=False, default="out", help="output directory")
+    run.add_argument("--check", action="store_true", help="validate config + recording only")
+    run.add_argument("--quiet", action="store_true", help="no progress bar or summary")
+    run.add_argument("--no-plots", action="store_true", help="skip the PNG figures")
+    run.set_defaults(func=_cmd_run)
+
+    val = sub.add_parser("validate", help="check a recording; list every problem")
+    val.add_argument("recording")
+    val.set_defaults(func=_cmd_validate)
+
+    valc = sub.add_parser("validate-config", help="check a configuration file")
+    valc.add_argument("config")
+    valc.set_defaults(func=_cmd_validate_config)
+
+    sim = sub.add_parser("simulate", help="write a simulated recording")
+    sim.add_argument("scenario", nargs="?", help="preset name or scenario YAML")
+    sim.add_argument("out", nargs="?", help="recording directory to write")
+    sim.add_argument("--seed", type=int, default=0)
+    sim.add_argument(
+        "--set",
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        help="override a scenario key (dotted path), repeatable",
+    )
+    sim.add_argument("--list", action="store_true", help="list the scenario presets")
+    sim.set_defaults(func=_cmd_simulate)
+
+    plot = sub.add_parser("sim-plot", help="plot a recording's truth (plan, speed, attitude)")
+    plot.add_argument("recording")
+    plot.add_argument("out", help="PNG file")
+    plot.set_defaults(func=_cmd_sim_plot)
+
+    demo = sub.add_parser("demo", help="simulate the default recording and fuse it")
+    demo.add_argument("--out", default="out/demo")
+    demo.add_argument("--scenario", default=DEFAULT_DEMO_SCENARIO)
+    demo.add_argument("--config", default=DEFAULT_DEMO_CONFIG)
+    demo.add_argument("--seed", type=int, default=0)
+    demo.add_argument("--set", action="append", default=[], metavar="KEY=VALUE")
+    demo.set_defaults(func=_cmd_demo)
+
+    plugins = sub.add_parser("plugins", help="list the registered aiding plugins")
+    plugins.set_defaults(func=_cmd_plugins)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Entry point of the ``fusion`` console script."""
+    from fusion.config import ConfigError
+    from fusion.plugin import PluginError
+    from fusion.recording import RecordingError
+
+    args = build_parser().parse_args(argv)
+    try:
+        return int(args.func(args))
+    except (ConfigError, RecordingError, PluginError) as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

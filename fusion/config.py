@@ -1,0 +1,166 @@
+"""Fusion configuration: typed pydantic models loaded from (and written back to) YAML.
+
+A configuration names the IMU tuning (defaults: the datasheet figures in the recording's
+``imu.spec``), the filter options, the aiding plugins (one YAML block per sensor with its own
+options and rejection gate, robot_localization style) and the outputs. Every model forbids
+unknown keys, so a typo is an error that names its path (``filter.covariance_stp_s``) and the
+nearest valid key.
+"""
+
+from __future__ import annotations
+
+import difflib
+from pathlib import Path
+from typing import Any, Literal
+
+import yaml
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
+
+
+class ConfigError(ValueError):
+    """A configuration file breaks a rule; the message names the file, key path and rule."""
+
+
+class _Strict(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+
+
+class ImuTuning(_Strict):
+    """IMU noise figures in datasheet units; ``None`` takes the recording's ``imu.spec``."""
+
+    gyro_bias_deg_h: float | None = Field(None, ge=0, description="bias 1σ (prior)")
+    gyro_arw_deg_rth: float | None = Field(None, ge=0, description="angle random walk")
+    accel_bias_mg: float | None = Field(None, ge=0, description="bias 1σ (prior)")
+    accel_vrw_mg_rthz: float | None = Field(None, ge=0, description="noise density")
+    gyro_bias_instability_deg_h: float = Field(0.0, ge=0, description="Gauss–Markov σ")
+    accel_bias_instability_mg: float = Field(0.0, ge=0, description="Gauss–Markov σ")
+    bias_correlation_time_s: float = Field(3600.0, gt=0)
+    noise_scale: float = Field(
+        1.0, gt=0, description="multiplies ARW and VRW (seed 000 App. A inflates by 5)"
+    )
+
+
+class FilterOptions(_Strict):
+    """Options of the error-state filter."""
+
+    architecture: Literal["centralized"] = "centralized"
+    covariance_step_s: float = Field(0.1, gt=0, description="covariance propagation step")
+    discretization: Literal["series", "van_loan"] = "series"
+    error_model: Literal["full", "low_speed"] = "full"
+    coning_sculling: bool = True
+    initial_sigma_scale: float = Field(1.0, gt=0, description="multiplies meta.yaml sigmas")
+
+
+class PluginBlock(BaseModel):
+    """One aiding source: its registered ``type``, an optional instance ``name``, a χ² gate,
+    and the plugin's own options (validated by the plugin's options model)."""
+
+    model_config = ConfigDict(extra="allow")
+
+    type: str
+    name: str | None = None
+    enabled: bool = True
+    gate_probability: float | None = Field(
+        None, gt=0, lt=1, description="reject updates whose NIS exceeds this χ² quantile"
+    )
+
+    @property
+    def options(self) -> dict[str, Any]:
+        """The plugin-specific keys."""
+        return dict(self.model_extra or {})
+
+    @property
+    def instance_name(self) -> str:
+        """``name`` or, by default, ``type``."""
+        return self.name or self.type
+
+
+class OutputOptions(_Strict):
+    """What ``fusion run`` writes."""
+
+    rate_hz: float | None = Field(None, gt=0, description="None: every covariance step")
+    plots: bool = True
+
+
+class FusionConfig(_Strict):
+    """A whole sensor combination."""
+
+    name: str
+    description: str = ""
+    imu: ImuTuning = ImuTuning()
+    filter: FilterOptions = FilterOptions()
+    plugins: list[PluginBlock] = []
+    output: OutputOptions = OutputOptions()
+    bridge_imu_gaps: bool = Field(False, description="accept IMU gaps > 5 samples, reported")
+
+    @model_validator(mode="after")
+    def _unique_names(self) -> FusionConfig:
+        names = [p.instance_name for p in self.plugins]
+        dupes = sorted({n for n in names if names.count(n) > 1})
+        if dupes:
+            raise ValueError(f"plugin names must be unique; repeated: {dupes}")
+        return self
+
+    def to_yaml(self) -> str:
+        """YAML text that :func:`load_config` reads back to an equal model."""
+        return yaml.safe_dump(self.model_dump(mode="json"), sort_keys=False)
+
+
+def _key_suggestion(model: type[BaseModel], loc: tuple[Any, ...]) -> str:
+    """' (did you mean X?)' for an unknown key, looking up the model at ``loc``."""
+    target: Any = model
+    for part in loc[:-1]:
+        fields = getattr(target, "model_fields", None)
+        if fields is None or not isinstance(part, str) or part not in fields:
+            if isinstance(part, int):
+                continue
+            return ""
+        annotation = fields[part].annotation
+        args = getattr(annotation, "__args__", ())
+        target = next((a for a in (annotation, *args) if hasattr(a, "model_fields")), None)
+        if target is None:
+            return ""
+    close = difflib.get_close_matches(str(loc[-1]), list(target.model_fields), n=1)
+    return f" (did you mean {close[0]!r}?)" if close else ""
+
+
+def format_validation_error(
+    source: str, model: type[BaseModel], error: ValidationError
+) -> list[str]:
+    """One line per problem: ``source: key a.b[0].c: rule``."""
+    lines = []
+    for err in error.errors():
+        loc = tuple(err["loc"])
+        path = ""
+        for part in loc:
+            path += f"[{part}]" if isinstance(part, int) else (f".{part}" if path else str(part))
+        hint = _key_suggestion(model, loc) if err["type"] == "extra_forbidden" else ""
+        rule = "unknown key" if err["type"] == "extra_forbidden" else err["msg"]
+        lines.append(f"{source}: key {path or '(top level)'}: {rule}{hint}")
+    return lines
+
+
+def parse_config(data: Any, source: str = "<config>") -> FusionConfig:
+    """Validate a mapping as a :class:`FusionConfig`; raise :class:`ConfigError`."""
+    if not isinstance(data, dict):
+        raise ConfigError(f"{source}: the top level must be a mapping of keys")
+    try:
+        return FusionConfig.model_validate(data)
+    except ValidationError as exc:
+        raise ConfigError("\n".join(format_validation_error(source, FusionConfig, exc))) from None
+
+
+def load_config(path: str | Path) -> FusionConfig:
+    """Read and validate a YAML configuration file."""
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except OSError as exc:
+        raise ConfigError(f"{path}: cannot read the configuration ({exc.strerror})") from None
+    try:
+        data = yaml.safe_load(text)
+    except yaml.YAMLError as exc:
+        mark = getattr(exc, "problem_mark", None)
+        where = f", line {mark.line + 1}" if mark is not None else ""
+        raise ConfigError(f"{path}{where}: not valid YAML ({exc})") from None
+    return parse_config(data, str(path))

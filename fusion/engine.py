@@ -1,0 +1,324 @@
+"""The engine: the one time-ordered loop over IMU intervals, covariance steps and aiding epochs.
+
+Every event time — a covariance step ``t0 + j·Δt`` (default Δt = 0.1 s), an aiding epoch of a
+plugin, an output epoch — is visited in order. At each one the SINS is advanced to exactly that
+time (splitting the IMU interval that contains it, KF-GINS style), the covariance is propagated
+over the interval since the previous event with F evaluated at the current nominal state and the
+mean specific force of the interval, the due plugins are asked for ``(z, H, R)``, and after the
+updates the common error estimate is fed back into the SINS and reset (closed loop). The
+navigation state therefore runs at the IMU rate and the covariance at the configured step.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy.spatial.transform import Rotation
+
+from fusion import attitude
+from fusion.config import ConfigError, FusionConfig, ImuTuning
+from fusion.earth import LocalFrame
+from fusion.error_model import (
+    POSITION,
+    ErrorModel,
+    ImuNoise,
+    StateLayout,
+    common_blocks,
+)
+from fusion.kalman import KalmanFilter
+from fusion.plugin import MeasurementContext, Plugin, create_plugin
+from fusion.recording import ImuSpec, Recording
+from fusion.solution import Solution
+from fusion.strapdown import HGT, LAT, LON, Q0, VEL, NavState, Strapdown
+
+ProgressCallback = Callable[[float], None]
+GRID, OUTPUT = -1, -2
+
+
+@dataclass
+class InnovationLog:
+    """Per-plugin record of every measurement epoch that produced a measurement."""
+
+    t: list[float] = field(default_factory=list)
+    nis: list[float] = field(default_factory=list)
+    dof: list[int] = field(default_factory=list)
+    accepted: list[bool] = field(default_factory=list)
+    whitened: list[NDArray[np.float64]] = field(default_factory=list)
+
+    def whitened_rms(self) -> float:
+        """RMS of all accepted whitened innovation components (≈ 1 when consistent)."""
+        parts = [w for w, a in zip(self.whitened, self.accepted, strict=True) if a]
+        if not parts:
+            return float("nan")
+        return float(np.sqrt(np.mean(np.square(np.concatenate(parts)))))
+
+
+@dataclass
+class RunResult:
+    """Everything a run produced (the Python API's return value)."""
+
+    solution: Solution
+    layout: StateLayout
+    final_state: NDArray[np.float64]
+    """Final estimates of every state: SINS biases and plugin states (fed-back ones included)."""
+    final_covariance: NDArray[np.float64]
+    innovations: dict[str, InnovationLog]
+    wall_time_s: float
+    config: FusionConfig
+    recording_name: str
+
+    @property
+    def duration_s(self) -> float:
+        """Recording time covered."""
+        return float(self.solution.t[-1] - self.solution.t[0])
+
+    @property
+    def realtime_factor(self) -> float:
+        """Recording duration ÷ wall time."""
+        return self.duration_s / max(self.wall_time_s, 1e-9)
+
+    def state_estimate(self, block: str) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """Final estimate and 1-σ of a state block (e.g. ``"gyro_bias"``)."""
+        s = self.layout.slice(block)
+        return self.final_state[s], np.sqrt(np.diag(self.final_covariance)[s])
+
+
+def resolve_imu_noise(tuning: ImuTuning, spec: ImuSpec | None) -> ImuNoise:
+    """IMU noise from the configuration, falling back to the recording's datasheet figures."""
+    figures = {}
+    missing = []
+    for key in ("gyro_arw_deg_rth", "accel_vrw_mg_rthz", "gyro_bias_deg_h", "accel_bias_mg"):
+        value = getattr(tuning, key)
+        if value is None and spec is not None:
+            value = getattr(spec, key)
+        if value is None:
+            missing.append(key)
+        figures[key] = value
+    if missing:
+        raise ConfigError(
+            "\n".join(
+                f"config key imu.{k}: not set, and the recording's meta.yaml has no imu.spec.{k}"
+                " to default to (give the datasheet figure in either place)"
+                for k in missing
+            )
+        )
+    noise = ImuNoise.from_datasheet(
+        gyro_arw_deg_rth=figures["gyro_arw_deg_rth"] * tuning.noise_scale,
+        accel_vrw_mg_rthz=figures["accel_vrw_mg_rthz"] * tuning.noise_scale,
+        gyro_bias_deg_h=figures["gyro_bias_deg_h"],
+        accel_bias_mg=figures["accel_bias_mg"],
+        gyro_bias_instability_deg_h=tuning.gyro_bias_instability_deg_h,
+        accel_bias_instability_mg=tuning.accel_bias_instability_mg,
+        bias_correlation_time_s=tuning.bias_correlation_time_s,
+    )
+    return noise
+
+
+def _event_schedule(
+    t0: float,
+    t_end: float,
+    step: float,
+    plugin_epochs: list[NDArray[np.float64]],
+    output_times: NDArray[np.float64],
+) -> tuple[NDArray[np.float64], NDArray[np.int64], NDArray[np.int64]]:
+    """Merge all event times; return times, source and index.
+
+    The source is ``GRID`` for a covariance step, ``OUTPUT`` for an output epoch, otherwise the
+    plugin's position in the list (and the index is the plugin's epoch index).
+    """
+    n_grid = int(np.floor((t_end - t0) / step + 1e-9))
+    grid = t0 + step * np.arange(1, n_grid + 1)
+    if grid.size == 0 or t_end - grid[-1] > 1e-9:
+        grid = np.append(grid, t_end)
+    times = [grid, output_times]
+    sources = [np.full(grid.size, GRID), np.full(output_times.size, OUTPUT)]
+    indices = [np.full(grid.size, -1), np.full(output_times.size, -1)]
+    for i, ep in enumerate(plugin_epochs):
+        keep = np.flatnonzero((ep > t0) & (ep <= t_end))
+        times.append(ep[keep])
+        sources.append(np.full(keep.size, i))
+        indices.append(keep)
+    t_all = np.concatenate(times)
+    order = np.argsort(t_all, kind="stable")
+    return t_all[order], np.concatenate(sources)[order], np.concatenate(indices)[order]
+
+
+class Engine:
+    """A configured filter over one recording.
+
+    Parameters
+    ----------
+    config
+        The sensor combination and filter options.
+    recording
+        The recording to process.
+    """
+
+    def __init__(self, config: FusionConfig, recording: Recording) -> None:
+        self.config = config
+        self.recording = recording
+        meta = recording.meta
+        self.frame = LocalFrame(meta.origin.lat_deg, meta.origin.lon_deg, meta.origin.height_m)
+        self.plugins: list[Plugin] = [
+            create_plugin(
+                block.type, block.instance_name, block.options, recording, f"plugins[{i}]"
+            )
+            for i, block in enumerate(config.plugins)
+            if block.enabled
+        ]
+        self.gates = [b.gate_probability for b in config.plugins if b.enabled]
+        imu = resolve_imu_noise(config.imu, meta.imu.spec)
+        sigma = meta.initial.sigma
+        scale = config.filter.initial_sigma_scale
+        blocks = common_blocks(
+            imu,
+            np.multiply(sigma.velocity_mps, scale),
+            np.deg2rad(sigma.attitude_deg) * scale,
+            np.multiply(sigma.position_m, scale),
+        )
+        self.layout = StateLayout(blocks).extended(
+            b for p in self.plugins for b in p.state_blocks()
+        )
+        self.model = ErrorModel(
+            self.layout,
+            imu,
+            form=config.filter.error_model,
+            discretization=config.filter.discretization,
+        )
+
+    def initial_state(self) -> NavState:
+        """Navigation state at the first IMU sample, from meta.yaml."""
+        init = self.recording.meta.initial
+        att = np.deg2rad([init.attitude_deg.roll, init.attitude_deg.pitch, init.attitude_deg.yaw])
+        return NavState.from_enu(
+            self.frame, init.position_enu_m, init.velocity_enu_mps, att[0], att[1], att[2]
+        )
+
+    def run(self, progress: ProgressCallback | None = None) -> RunResult:
+        """Process the whole recording."""
+        wall0 = time.perf_counter()
+        imu = self.recording.imu
+        cfg = self.config.filter
+        sins = Strapdown(
+            imu.t, imu.gyro, imu.accel, self.initial_state(), coning_sculling=cfg.coning_sculling
+        )
+        kf = KalmanFilter(np.zeros(self.layout.dim), self.layout.initial_covariance())
+        t0, t_end = float(imu.t[0]), float(imu.t[-1])
+        rate = self.config.output.rate_hz
+        output_times = np.arange(t0 + 1.0 / rate, t_end + 1e-9, 1.0 / rate) if rate else np.empty(0)
+        times, sources, indices = _event_schedule(
+            t0, t_end, cfg.covariance_step_s, [p.epochs() for p in self.plugins], output_times
+        )
+        logs = {p.name: InnovationLog() for p in self.plugins}
+        pos = self.layout.slice(POSITION)
+        out_t = [t0]
+        out_nav = [sins.nav.copy()]
+        out_cov = [kf.P[pos, pos].copy()]
+        t_cov = t0
+        n_events = len(times)
+        report_every = max(n_events // 100, 1)
+        i = 0
+        while i < n_events:
+            te = float(times[i])
+            j = i
+            while j < n_events and times[j] - te < 1e-9:
+                j += 1
+            sins.advance_to(te)
+            dt = te - t_cov
+            if dt > 1e-9:
+                f_n = sins.take_velocity_increment() / dt
+                phi, qd = self.model.discrete(sins.nav, f_n, sins.c_b_n, dt)
+                kf.predict(phi, qd)
+                t_cov = te
+            updated = False
+            is_output = False
+            for k in range(i, j):
+                src = int(sources[k])
+                if src < 0:
+                    is_output |= src == OUTPUT or (src == GRID and rate is None)
+                    continue
+                updated |= self._update(
+                    self.plugins[src], int(indices[k]), te, sins, kf, logs, self.gates[src]
+                )
+            if updated:
+                self._feedback(sins, kf)
+            if is_output:
+                out_t.append(te)
+                out_nav.append(sins.nav.copy())
+                out_cov.append(kf.P[pos, pos].copy())
+            if progress is not None and (i // report_every) != (j // report_every):
+                progress(j / n_events)
+            i = j
+        solution = self._solution(np.array(out_t), np.array(out_nav), np.array(out_cov))
+        final = kf.x.copy()
+        final[self.layout.slice("gyro_bias")] += sins.gyro_bias
+        final[self.layout.slice("accel_bias")] += sins.accel_bias
+        return RunResult(
+            solution=solution,
+            layout=self.layout,
+            final_state=final,
+            final_covariance=kf.P.copy(),
+            innovations=logs,
+            wall_time_s=time.perf_counter() - wall0,
+            config=self.config,
+            recording_name=self.recording.meta.name,
+        )
+
+    def _context(self, sins: Strapdown, kf: KalmanFilter, t: float) -> MeasurementContext:
+        nav = sins.nav
+        return MeasurementContext(
+            t=t,
+            lat=float(nav[LAT]),
+            lon=float(nav[LON]),
+            height=float(nav[HGT]),
+            velocity=nav[VEL : VEL + 3].copy(),
+            c_b_n=sins.c_b_n,
+            position_enu=self.frame.to_enu(nav[LAT], nav[LON], nav[HGT]),
+            layout=self.layout,
+            x=kf.x.copy(),
+            frame=self.frame,
+        )
+
+    def _update(
+        self,
+        plugin: Plugin,
+        index: int,
+        t: float,
+        sins: Strapdown,
+        kf: KalmanFilter,
+        logs: dict[str, InnovationLog],
+        gate: float | None,
+    ) -> bool:
+        m = plugin.measure(index, self._context(sins, kf, t))
+        if m is None:
+            return False
+        res = kf.update(m.z, m.H, m.R, gate)
+        log = logs[plugin.name]
+        log.t.append(t)
+        log.nis.append(res.nis)
+        log.dof.append(res.dof)
+        log.accepted.append(res.accepted)
+        log.whitened.append(res.whitened)
+        return res.accepted
+
+    def _feedback(self, sins: Strapdown, kf: KalmanFilter) -> None:
+        x = kf.x
+        sins.correct(x[0:3], x[3:6], x[6:9], x[9:12], x[12:15])
+        x[0:15] = 0.0
+
+    def _solution(
+        self, t: NDArray[np.float64], nav: NDArray[np.float64], cov: NDArray[np.float64]
+    ) -> Solution:
+        c_b_n = Rotation.from_quat(nav[:, Q0 : Q0 + 4], scalar_first=True).as_matrix()
+        return Solution(
+            t=t,
+            position=self.frame.to_enu(nav[:, LAT], nav[:, LON], nav[:, HGT]),
+            velocity=nav[:, VEL : VEL + 3].copy(),
+            attitude=attitude.euler_from_dcm(c_b_n),
+            sigma_position=np.sqrt(np.diagonal(cov, axis1=1, axis2=2)),
+            position_covariance=cov,
+        )

@@ -1,0 +1,67 @@
+"""What ``fusion run`` writes: solution.csv, metrics.json (with truth), figures, and a summary."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from fusion.engine import RunResult
+from fusion.metrics import compute_metrics, write_metrics_json
+from fusion.recording import Recording
+from fusion.solution import write_solution
+
+
+def write_outputs(
+    result: RunResult, recording: Recording, out_dir: str | Path, *, plots: bool = True
+) -> dict[str, Path]:
+    """Write the run's files into ``out_dir`` and return them by kind."""
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    files = {"solution": out / "solution.csv"}
+    write_solution(result.solution, files["solution"])
+    truth = recording.truth
+    if truth is not None:
+        files["metrics"] = out / "metrics.json"
+        write_metrics_json(
+            {"solution.csv": compute_metrics(result.solution, truth)}, files["metrics"]
+        )
+    if plots:
+        from fusion import plots as figures
+
+        title = f"{result.config.name} on {result.recording_name}"
+        files["plan"] = figures.plot_plan_view(result.solution, truth, out / "plan.png", title)
+        if truth is not None:
+            files["errors"] = figures.plot_errors(result.solution, truth, out / "errors.png", title)
+    return files
+
+
+def summary(result: RunResult, recording: Recording) -> str:
+    """A one-screen text summary of a run."""
+    sol = result.solution
+    lines = [
+        f"config     {result.config.name}",
+        f"recording  {result.recording_name}  ({result.duration_s:.1f} s, {len(sol.t)} epochs)",
+        f"speed      {result.wall_time_s:.2f} s wall, {result.realtime_factor:.0f}x real time",
+        f"final σ    e/n/u {np.array2string(sol.sigma_position[-1], precision=3)} m",
+    ]
+    for name, log in result.innovations.items():
+        n = len(log.t)
+        rejected = n - int(np.sum(log.accepted))
+        lines.append(
+            f"plugin     {name}: {n} updates, {rejected} rejected, "
+            f"whitened-innovation RMS {log.whitened_rms():.2f}"
+        )
+    for block in result.layout.blocks[3:]:
+        est, sd = result.state_estimate(block.name)
+        lines.append(
+            f"estimate   {block.name}: {np.array2string(est, precision=6)} "
+            f"± {np.array2string(sd, precision=6)}"
+        )
+    if recording.truth is not None:
+        m = compute_metrics(sol, recording.truth)
+        lines.append(
+            f"accuracy   horizontal RMS {m['horizontal_rms']:.3f} m, 3-D RMS {m['rms_3d']:.3f} m,"
+            f" max horizontal {m['horizontal_max']:.3f} m"
+        )
+    return "\n".join(lines)

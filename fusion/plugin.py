@@ -1,0 +1,153 @@
+"""The aiding-plugin interface and the entry-point registry.
+
+A plugin turns one sensor stream of a recording into error-state measurements. It knows nothing
+of the filter architecture: at each of its epochs the engine hands it a :class:`MeasurementContext`
+(the nominal SINS state, the filter's :class:`~fusion.error_model.StateLayout` and the current
+error estimate) and the plugin returns a :class:`Measurement` ``(z, H, R)`` over that layout, or
+``None`` when it has nothing to say. ``z`` is the predicted-minus-measured residual, so that
+``z = H δx + v`` with ``δx`` the error state (estimate minus truth). A plugin owns the extra states
+its model needs (odometer scale, mounting angles, range biases) by declaring
+:class:`~fusion.error_model.StateBlock` objects, which the engine appends to the layout.
+
+Plugins are found through the ``fusion.plugins`` entry-point group (``name = "module:Class"``),
+so a third party adds one by packaging it, without touching the core.
+"""
+
+from __future__ import annotations
+
+from abc import ABC, abstractmethod
+from dataclasses import dataclass
+from importlib.metadata import entry_points
+from typing import Any, ClassVar
+
+import numpy as np
+from numpy.typing import NDArray
+from pydantic import BaseModel, ConfigDict, ValidationError
+
+from fusion.earth import LocalFrame
+from fusion.error_model import StateBlock, StateLayout
+from fusion.recording import Recording
+
+ENTRY_POINT_GROUP = "fusion.plugins"
+
+
+class PluginOptions(BaseModel):
+    """Base of every plugin's options model (unknown keys are errors)."""
+
+    model_config = ConfigDict(extra="forbid")
+
+
+@dataclass(frozen=True)
+class Measurement:
+    """An error-state measurement ``z = H δx + v``, ``v ~ N(0, R)``."""
+
+    z: NDArray[np.float64]
+    H: NDArray[np.float64]
+    R: NDArray[np.float64]
+
+
+@dataclass(frozen=True)
+class MeasurementContext:
+    """What a plugin sees at one of its epochs.
+
+    Attributes
+    ----------
+    t
+        Epoch (s, recording clock).
+    lat, lon, height
+        Nominal geodetic position (rad, rad, m).
+    velocity
+        Nominal ENU velocity (m/s).
+    c_b_n
+        Nominal attitude matrix.
+    position_enu
+        Nominal position in ENU metres about the recording origin.
+    layout
+        States of the filter being served.
+    x
+        Its current error estimate (plugin states may be non-zero; SINS states are zero after
+        closed-loop feedback).
+    frame
+        The recording's ENU frame.
+    """
+
+    t: float
+    lat: float
+    lon: float
+    height: float
+    velocity: NDArray[np.float64]
+    c_b_n: NDArray[np.float64]
+    position_enu: NDArray[np.float64]
+    layout: StateLayout
+    x: NDArray[np.float64]
+    frame: LocalFrame
+
+
+class Plugin(ABC):
+    """Base class of aiding sources.
+
+    Subclasses set :attr:`Options` to their pydantic options model and implement
+    :meth:`epochs` and :meth:`measure`; they may override :meth:`state_blocks`.
+
+    Parameters
+    ----------
+    name
+        Instance name (prefix of its state blocks).
+    options
+        Validated options.
+    recording
+        The recording the plugin reads its stream from.
+    """
+
+    Options: ClassVar[type[PluginOptions]] = PluginOptions
+
+    def __init__(self, name: str, options: PluginOptions, recording: Recording) -> None:
+        self.name = name
+        self.options = options
+        self.recording = recording
+
+    def state_blocks(self) -> tuple[StateBlock, ...]:
+        """Extra error states this plugin owns (default: none)."""
+        return ()
+
+    @abstractmethod
+    def epochs(self) -> NDArray[np.float64]:
+        """Sorted times at which :meth:`measure` is to be called."""
+
+    @abstractmethod
+    def measure(self, index: int, ctx: MeasurementContext) -> Measurement | None:
+        """The measurement of epoch ``index``, or ``None``."""
+
+
+class PluginError(ValueError):
+    """A plugin cannot be found or its options are invalid."""
+
+
+def available_plugins() -> dict[str, type[Plugin]]:
+    """Registered plugin classes by entry-point name."""
+    found: dict[str, type[Plugin]] = {}
+    for ep in entry_points(group=ENTRY_POINT_GROUP):
+        found[ep.name] = ep.load()
+    return found
+
+
+def create_plugin(
+    kind: str, name: str, options: dict[str, Any], recording: Recording, where: str
+) -> Plugin:
+    """Instantiate plugin ``kind`` with ``options``; errors name ``where`` (the config path)."""
+    registry = available_plugins()
+    if kind not in registry:
+        raise PluginError(
+            f"{where}.type: no plugin {kind!r} is registered (known: {sorted(registry)})"
+        )
+    cls = registry[kind]
+    try:
+        opts = cls.Options.model_validate(options)
+    except ValidationError as exc:
+        lines = [
+            f"{where}.{'.'.join(str(p) for p in e['loc'])}: "
+            + ("unknown key" if e["type"] == "extra_forbidden" else e["msg"])
+            for e in exc.errors()
+        ]
+        raise PluginError("\n".join(lines)) from None
+    return cls(name, opts, recording)
