@@ -1,0 +1,7 @@
+"""Longwall simulator: scenario → truth trajectory → exact IMU → sensor models → recording.
+
+The simulator is a separate product that writes recordings in the ``shearer-recording/1``
+format; the fusion engine never imports it. Entry points live in :mod:`fusion.sim.simulate`
+(``simulate``, ``load_scenario``, ``list_scenarios``) and :mod:`fusion.sim.plot`
+(``plot_truth``).
+"""

@@ -1,0 +1,333 @@
+"""Scenario schema of the longwall simulator, YAML presets and ``--set key.sub=value`` overrides.
+
+A scenario is one YAML mapping validated by :class:`Scenario` (pydantic v2, unknown keys are
+errors and every error names its dotted key path). It declares
+
+* ``origin`` — the geodetic point whose ENU axes carry all positions (the near end of the first
+  cutting line for a face, the start of a track);
+* exactly one shape: ``face`` (a longwall: straight cutting passes, terminal oblique cutting at
+  each end, AFC advanced by the web depth per cycle) or ``track`` (a vehicle that turns: a
+  closed polygon driven in laps, or an open broken line);
+* ``motion`` — cruise speeds, ramps, random stops, cutting vibration;
+* ``imu`` — output rate, grade preset or explicit error model, quadrature nodes, truth rate;
+* ``initial`` — the 1-σ uncertainty written to meta.yaml and whether the written initial state
+  is perturbed by a seeded draw from it;
+* optional sensor sections (``odometer``, ``magnetometer``, ``uwb``, ``support``) whose models
+  come from :mod:`fusion.sim.sensors`, and ``faults`` from :mod:`fusion.sim.faults`.
+
+Every scenario starts with a static period (``static_start_s``, default 60 s, cycle index 0)
+and ends with one (``static_end_s``). ``duration_s`` (optional) truncates the run or pads it
+with a static tail.
+
+Overrides ``key.sub=value`` are parsed as YAML scalars (``1.5`` → float, ``false`` → bool,
+``[1, 2]`` → list) and set on the dotted path of the raw mapping before validation; a path
+whose parent does not exist is an error naming it.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any, Literal
+
+import yaml
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
+
+SCENARIO_DIR = Path(__file__).with_name("scenarios")
+
+
+class ScenarioError(ValueError):
+    """A scenario file, preset name or override is invalid (message names the key path)."""
+
+
+class _Strict(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+
+class Origin(_Strict):
+    """Geodetic origin of the ENU frame (degrees, metres)."""
+
+    lat_deg: float = Field(default=34.25, ge=-89.0, le=89.0)
+    lon_deg: float = Field(default=108.95, ge=-180.0, le=360.0)
+    height_m: float = -350.0
+
+
+class Waviness(_Strict):
+    """Lateral straightness deviation of the AFC line (smooth sum of sinusoids).
+
+    ``lat(s, a) = Σ_i A_i sin(2π s/λ_i + a/ℓ_i + φ_i)``: amplitude split over the wavelengths,
+    random phases φ_i, and a phase drift of 1/ℓ_i per metre of advance (ℓ_i = ±decorrelation_m)
+    so that consecutive cutting lines are similar but not identical.
+    """
+
+    amplitude_m: float = Field(default=0.08, ge=0.0)
+    wavelengths_m: list[float] = Field(default_factory=lambda: [37.0, 83.0, 161.0])
+    decorrelation_m: float = Field(default=12.0, gt=0.0)
+
+
+class Floor(_Strict):
+    """Floor height ``Z(ξ, η)`` in face coordinates (ξ along the face, η in the advance direction).
+
+    ``Z = ξ tan(slope_along) + η tan(dip_across) + Σ_j B_j sin(2π ξ/λ_j + 2π η/μ_j + φ_j)``;
+    pitch follows the path slope, roll the cross slope of this surface.
+    """
+
+    slope_along_deg: float = 1.5
+    dip_across_deg: float = 2.0
+    undulation_m: float = Field(default=0.4, ge=0.0)
+    wavelengths_m: list[float] = Field(default_factory=lambda: [43.0, 97.0])
+    across_wavelength_m: float = Field(default=60.0, gt=0.0)
+
+
+class Face(_Strict):
+    """Longwall face: the AFC line, the web depth and the mining cycle."""
+
+    length_m: float = Field(default=200.0, gt=1.0)
+    azimuth_deg: float = 92.0
+    advance_m: float = Field(default=0.8, gt=0.0)
+    advance_jitter_m: float = Field(default=0.0, ge=0.0)
+    cycles: int = Field(default=6, ge=1)
+    bend_length_m: float = Field(default=25.0, gt=0.0)
+    sump_overrun_m: float = Field(default=8.0, ge=0.0)
+    end_dwell_s: tuple[float, float] = (20.0, 40.0)
+    push_dwell_s: tuple[float, float] = (60.0, 120.0)
+    maneuver_speed_mpm: float = Field(default=4.0, gt=0.0)
+    waviness: Waviness = Waviness()
+    floor: Floor = Floor()
+
+
+class Track(_Strict):
+    """A vehicle track that turns: waypoints (along ξ, right η in the azimuth frame, metres).
+
+    The heading turns smoothly over ``corner_length_m`` around each vertex (quintic
+    smoothstep of the heading), the curve is integrated and represented by a quintic spline in
+    arc length. ``closed`` tracks return to the first waypoint and are driven ``laps`` times
+    (the cycle index is the lap number).
+    """
+
+    waypoints_m: list[tuple[float, float]]
+    closed: bool = False
+    laps: int = Field(default=1, ge=1)
+    corner_length_m: float = Field(default=2.0, gt=0.0)
+    azimuth_deg: float = 0.0
+    floor: Floor = Floor(slope_along_deg=0.0, dip_across_deg=0.0, undulation_m=0.05)
+
+    @model_validator(mode="after")
+    def _check(self) -> Track:
+        if len(self.waypoints_m) < 2:
+            raise ValueError("a track needs at least two waypoints")
+        return self
+
+
+class Stops(_Strict):
+    """Random stops while cutting: Poisson in time, uniform duration."""
+
+    rate_per_hour: float = Field(default=4.0, ge=0.0)
+    duration_s: tuple[float, float] = (10.0, 90.0)
+
+
+class Vibration(_Strict):
+    """Cutting vibration, on only while moving (smooth envelope following the speed ramps).
+
+    Each axis gets ``components`` sinusoids at frequencies uniform in ``freq_hz``; the linear
+    part is a displacement in n with acceleration amplitude ``linear_mps2`` per component, the
+    angular part is added to each Euler angle with rate amplitude ``angular_dps``.
+    """
+
+    enabled: bool = True
+    linear_mps2: float = Field(default=0.3, ge=0.0)
+    angular_dps: float = Field(default=0.3, ge=0.0)
+    freq_hz: tuple[float, float] = (5.0, 30.0)
+    components: int = Field(default=3, ge=1)
+
+
+class Motion(_Strict):
+    """Speed profile: cruise speeds, ramps, speed changes and stops."""
+
+    speed_mpm: tuple[float, float] = (2.0, 8.0)
+    accel_mps2: float = Field(default=0.02, gt=0.0)
+    min_ramp_s: float = Field(default=2.0, gt=0.0)
+    speed_changes_per_hour: float = Field(default=6.0, ge=0.0)
+    stops: Stops = Stops()
+    vibration: Vibration = Vibration()
+
+
+class Imu(_Strict):
+    """IMU output: rate, error grade (preset name or explicit model), exact-mean quadrature."""
+
+    rate_hz: float = Field(default=100.0, gt=0.0)
+    grade: str | None = "mti-g-700"
+    errors: dict[str, Any] | None = None
+    quadrature_nodes: int = Field(default=6, ge=1, le=16)
+    truth_rate_hz: float | None = Field(default=None, ge=10.0)
+
+
+class InitialSigma(_Strict):
+    """1-σ uncertainty of the initial state written to meta.yaml."""
+
+    position_m: tuple[float, float, float] = (0.05, 0.05, 0.05)
+    velocity_mps: tuple[float, float, float] = (0.01, 0.01, 0.01)
+    attitude_deg: tuple[float, float, float] = (0.3, 0.3, 1.0)
+
+
+class Initial(_Strict):
+    """Initial state given to filters: the truth perturbed by a seeded draw from ``sigma``."""
+
+    sigma: InitialSigma = InitialSigma()
+    perturb: bool = True
+
+
+class Scenario(_Strict):
+    """A complete simulator scenario (see the module docstring)."""
+
+    name: str
+    description: str = ""
+    origin: Origin = Origin()
+    static_start_s: float = Field(default=60.0, ge=0.0)
+    static_end_s: float = Field(default=30.0, ge=0.0)
+    duration_s: float | None = Field(default=None, gt=0.0)
+    chunk_s: float = Field(default=600.0, gt=0.0)
+    face: Face | None = None
+    track: Track | None = None
+    motion: Motion = Motion()
+    imu: Imu = Imu()
+    initial: Initial = Initial()
+    odometer: dict[str, Any] | None = None
+    magnetometer: dict[str, Any] | None = None
+    uwb: dict[str, Any] | None = None
+    support: dict[str, Any] | None = None
+    faults: list[dict[str, Any]] = Field(default_factory=list)
+
+    @model_validator(mode="after")
+    def _one_shape(self) -> Scenario:
+        if (self.face is None) == (self.track is None):
+            raise ValueError("exactly one of 'face' and 'track' must be given")
+        return self
+
+
+def _format_errors(err: ValidationError, source: str) -> str:
+    lines = [f"invalid scenario {source}:"]
+    for e in err.errors():
+        path = ".".join(str(p) for p in e["loc"]) or "<root>"
+        lines.append(f"  {path}: {e['msg']}")
+    return "\n".join(lines)
+
+
+def parse_override(text: str) -> tuple[list[str], Any]:
+    """Split ``key.sub=value`` into the key path and the YAML-parsed scalar value."""
+    if "=" not in text:
+        raise ScenarioError(f"override {text!r}: expected key.sub=value")
+    key, raw = text.split("=", 1)
+    path = [p for p in key.strip().split(".")]
+    if not key.strip() or any(not p for p in path):
+        raise ScenarioError(f"override {text!r}: empty key path")
+    try:
+        value = yaml.safe_load(raw) if raw.strip() else None
+    except yaml.YAMLError as exc:
+        raise ScenarioError(f"override {text!r}: value is not valid YAML ({exc})") from exc
+    return path, value
+
+
+def _known_fields(path: list[str]) -> bool:
+    """Whether ``path`` names a field of the schema (used to allow setting unset sections)."""
+    model: Any = Scenario
+    for part in path:
+        fields = getattr(model, "model_fields", None)
+        if fields is None or part not in fields:
+            return False
+        ann = fields[part].annotation
+        nested = [
+            a
+            for a in getattr(ann, "__args__", (ann,))
+            if isinstance(a, type) and issubclass(a, BaseModel)
+        ]
+        model = nested[0] if nested else None
+    return True
+
+
+def apply_overrides(data: dict[str, Any], overrides: Sequence[str]) -> dict[str, Any]:
+    """Apply ``key.sub=value`` overrides onto a raw scenario mapping (returns a new mapping)."""
+    import copy
+
+    out = copy.deepcopy(data)
+    for text in overrides:
+        path, value = parse_override(text)
+        node: Any = out
+        for i, part in enumerate(path[:-1]):
+            where = ".".join(path[: i + 1])
+            if isinstance(node, dict):
+                if part not in node or node[part] is None:
+                    if not _known_fields(path[: i + 1]):
+                        raise ScenarioError(f"override {text!r}: no key {where!r} in the scenario")
+                    node[part] = {}
+                node = node[part]
+            elif isinstance(node, list) and part.isdigit() and int(part) < len(node):
+                node = node[int(part)]
+            else:
+                raise ScenarioError(f"override {text!r}: {where!r} is not a mapping")
+        last = path[-1]
+        if isinstance(node, dict):
+            if last not in node and not _known_fields(path):
+                raise ScenarioError(f"override {text!r}: no key {'.'.join(path)!r} in the scenario")
+            node[last] = value
+        elif isinstance(node, list) and last.isdigit() and int(last) < len(node):
+            node[int(last)] = value
+        else:
+            raise ScenarioError(f"override {text!r}: cannot set {'.'.join(path)!r}")
+    return out
+
+
+def scenario_from_mapping(data: Any, source: str = "<mapping>") -> Scenario:
+    """Validate a raw mapping into a :class:`Scenario` (errors name the key path)."""
+    if not isinstance(data, dict):
+        raise ScenarioError(f"invalid scenario {source}: top level must be a mapping")
+    try:
+        return Scenario.model_validate(data)
+    except ValidationError as err:
+        raise ScenarioError(_format_errors(err, source)) from None
+
+
+def preset_path(name: str) -> Path:
+    """Path of the preset YAML called ``name``."""
+    return SCENARIO_DIR / f"{name}.yaml"
+
+
+def read_scenario_mapping(name_or_path: str | Path) -> tuple[dict[str, Any], str]:
+    """Raw mapping of a preset name or a YAML path, and a label for messages."""
+    p = Path(name_or_path)
+    if p.suffix in (".yaml", ".yml") or p.exists():
+        path = p
+    else:
+        path = preset_path(str(name_or_path))
+        if not path.exists():
+            known = ", ".join(n for n, _ in list_presets())
+            raise ScenarioError(f"unknown scenario {name_or_path!r} (presets: {known})")
+    try:
+        data = yaml.safe_load(path.read_text(encoding="utf-8"))
+    except (OSError, yaml.YAMLError) as exc:
+        raise ScenarioError(f"cannot read scenario {path}: {exc}") from exc
+    if not isinstance(data, dict):
+        raise ScenarioError(f"invalid scenario {path}: top level must be a mapping")
+    return data, str(path)
+
+
+def load_scenario(name_or_path: str | Path, overrides: Sequence[str] = ()) -> Scenario:
+    """Load a preset (by name) or a YAML file, apply overrides, validate."""
+    data, source = read_scenario_mapping(name_or_path)
+    return scenario_from_mapping(apply_overrides(data, overrides), source)
+
+
+def list_presets() -> list[tuple[str, str]]:
+    """``(name, one-line description)`` of every preset, sorted by name."""
+    out = []
+    for path in sorted(SCENARIO_DIR.glob("*.yaml")):
+        try:
+            data = yaml.safe_load(path.read_text(encoding="utf-8")) or {}
+        except yaml.YAMLError:
+            data = {}
+        desc = str(data.get("description", "")).strip().splitlines()
+        out.append((path.stem, desc[0] if desc else ""))
+    return out
+
+
+ShapeKind = Literal["face", "track"]
