@@ -52,9 +52,11 @@ import numba
 import numpy as np
 import scipy.linalg
 from numpy.typing import NDArray
+from scipy.spatial.transform import Rotation
 
 from fusion import earth
-from fusion.strapdown import HGT, LAT, VEL
+from fusion.attitude import dcm_from_quat
+from fusion.strapdown import HGT, LAT, LON, Q0, VEL
 
 G0 = 9.80665
 """Standard gravity used by datasheets for mg (m/s²)."""
@@ -392,3 +394,26 @@ def discretize(
     fq = f @ q
     qd = q * dt + 0.5 * (fq + fq.T) * dt**2 + (fq @ f.T) * dt**3 / 3.0
     return phi, qd
+
+
+def navigation_error(
+    estimate: NDArray[np.float64], truth: NDArray[np.float64]
+) -> NDArray[np.float64]:
+    """Error states ``[δv, φ, δp]`` (9,) of a packed nominal state against a true one.
+
+    Both are packed navigation arrays (:mod:`fusion.strapdown` layout); ``φ`` is taken from
+    ``C̃_b^n C_n^b = I − φ×`` exactly (rotation vector), ``δp`` in local metres.
+    """
+    c_est = dcm_from_quat(estimate[Q0 : Q0 + 4])
+    c_true = dcm_from_quat(truth[Q0 : Q0 + 4])
+    phi = -Rotation.from_matrix(c_est @ c_true.T).as_rotvec()
+    rm, rn = earth.radii(truth[LAT])
+    h = truth[HGT]
+    dp = np.array(
+        [
+            (rn + h) * math.cos(truth[LAT]) * (estimate[LON] - truth[LON]),
+            (rm + h) * (estimate[LAT] - truth[LAT]),
+            estimate[HGT] - truth[HGT],
+        ]
+    )
+    return np.concatenate([estimate[VEL : VEL + 3] - truth[VEL : VEL + 3], phi, dp])
