@@ -144,7 +144,9 @@ def normal_gravity_latitude_gradient(lat: float, height: float) -> float:
     s2 = s * s
     w2 = 1.0 - E2 * s2
     gamma0 = GAMMA_E * (1.0 + GAMMA_K * s2) / np.sqrt(w2)
-    dgamma0 = GAMMA_E * 2.0 * s * c * (GAMMA_K / np.sqrt(w2) + (1.0 + GAMMA_K * s2) * 0.5 * E2 / w2**1.5)
+    dgamma0 = (
+        GAMMA_E * 2.0 * s * c * (GAMMA_K / np.sqrt(w2) + (1.0 + GAMMA_K * s2) * 0.5 * E2 / w2**1.5)
+    )
     factor = 1.0 - 2.0 / A * (1.0 + F + GRAVITY_M - 2.0 * F * s2) * height + 3.0 * height**2 / A**2
     dfactor = 8.0 * F * s * c * height / A
     return dgamma0 * factor + gamma0 * dfactor
