@@ -530,7 +530,7 @@ def synthesize(
     """IMU interval means and truth for ``traj`` over ``[t0, t0 + duration_s]``."""
     dt = 1.0 / rate_hz
     n = round(duration_s * rate_hz) + 1
-    t = t0 + dt * np.arange(n)
+    t: Array = t0 + dt * np.arange(n, dtype=np.float64)
     x, w = np.polynomial.legendre.leggauss(nodes)
     offs = 0.5 * dt * (x - 1.0)  # node offsets in (t_k - dt, t_k)
     gyro = np.empty((n, 3))
@@ -542,7 +542,7 @@ def synthesize(
         m = tk.size
         gyro[a : a + m] = 0.5 * np.einsum("kqi,q->ki", pw["w_ib_b"].reshape(m, nodes, 3), w)
         accel[a : a + m] = 0.5 * np.einsum("kqi,q->ki", pw["f_b"].reshape(m, nodes, 3), w)
-    truth = {k: [] for k in ("enu", "vel", "euler", "lat", "lon", "h")}
+    truth: dict[str, list[Array]] = {k: [] for k in ("enu", "vel", "euler", "lat", "lon", "h")}
     for a in range(0, n, chunk * nodes):
         pw = pointwise(traj, t[a : a + chunk * nodes])
         for k in truth:
@@ -560,5 +560,5 @@ def synthesize(
         lat=cat["lat"],
         lon=cat["lon"],
         height=cat["h"],
-        origin_deg=tuple(traj.origin_deg),
+        origin_deg=traj.origin_deg,
     )

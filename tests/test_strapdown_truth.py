@@ -12,6 +12,8 @@ Run with ``pytest -s tests/test_strapdown_truth.py`` to see the measured errors,
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 import pytest
 from analytic_truth import (
@@ -88,7 +90,7 @@ def test_rest_tilted_displaced_reads_rotated_gravity_and_earth_rate():
     np.testing.assert_allclose(syn.attitude[:, :2], np.tile(eul[:2], (syn.t.size, 1)))
 
 
-VIBRATION = {"coning_amp_deg": 0.3, "sculling_amp_deg": 0.2, "sculling_accel": 2.0}
+VIBRATION: dict[str, Any] = {"coning_amp_deg": 0.3, "sculling_amp_deg": 0.2, "sculling_accel": 2.0}
 # Finite-difference checks: (motion, time span, step). Steps are powers of two and the times
 # multiples of 2⁻¹⁶ s, so that t ± h is exact; the remaining floor is the rounding of the phase
 # ω t of each harmonic (≈ ulp(ω t)), which is why the vibration case uses a shorter span.
@@ -168,13 +170,13 @@ def test_interval_means_converge_and_approach_midpoint_values():
     # values at t_k - dt, t_k - dt/2, t_k agrees to O(dt⁴) (a shifted interval would not)
     traj = ShearerMotion().trajectory()
     s = synthesize(traj, 20.0)
-    a, m, b = (pointwise(traj, s.t - off) for off in (0.01, 0.005, 0.0))
+    p0, pm, p1 = (pointwise(traj, s.t - off) for off in (0.01, 0.005, 0.0))
     for key, mean, tol in (("w_ib_b", s.gyro, 2e-9), ("f_b", s.accel, 1e-7)):
-        simpson = (a[key] + 4.0 * m[key] + b[key]) / 6.0
+        simpson = (p0[key] + 4.0 * pm[key] + p1[key]) / 6.0
         err = np.abs(mean - simpson).max()
         print(
             f"{key}: |mean − Simpson| {err:.1e}, "
-            f"|mean − end value| {np.abs(mean - b[key]).max():.1e}"
+            f"|mean − end value| {np.abs(mean - p1[key]).max():.1e}"
         )
         assert err < tol
 
@@ -188,7 +190,7 @@ def test_own_earth_model_agrees_with_fusion_earth():
     h = np.array([-1200.0, -350.0, 0.0, 12.0, 500.0, 3000.0, -20.0])
     rm, rn = radii_of_curvature(lat)
     rm2, rn2 = earth.radii(lat)
-    np.testing.assert_allclose([rm, rn], [rm2, rn2], rtol=1e-15)
+    np.testing.assert_allclose(np.array([rm, rn]), np.array([rm2, rn2]), rtol=1e-15)
     np.testing.assert_allclose(
         normal_gravity(lat, h), earth.normal_gravity(lat, h), rtol=1e-15, atol=0
     )
@@ -277,8 +279,8 @@ def _two_sample_residual(x: float) -> tuple[float, float]:
     return plain, plain - (1.0 - np.cos(x)) * sinc / 3.0
 
 
-CONING = {"coning_amp_deg": 0.3, "coning_hz": 15.0}
-SCULLING = {"sculling_amp_deg": 0.2, "sculling_hz": 22.0, "sculling_accel": 2.0}
+CONING: dict[str, Any] = {"coning_amp_deg": 0.3, "coning_hz": 15.0}
+SCULLING: dict[str, Any] = {"sculling_amp_deg": 0.2, "sculling_hz": 22.0, "sculling_accel": 2.0}
 
 
 def test_coning_correction_under_vibration():
