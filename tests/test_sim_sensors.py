@@ -215,8 +215,9 @@ def test_allan_peak_equals_bias_instability_without_white_noise() -> None:
     assert taus[curve.argmax()] == pytest.approx(5.0 * GM_ALLAN_PEAK_TAU_RATIO, rel=1e-3)
 
 
-@pytest.mark.slow
 def test_allan_mti_g_700_three_hours() -> None:
+    # 3 h at 100 Hz (~1 s): white noise at 1 s and the Gauss–Markov floor at τ_c and 1.89 τ_c;
+    # with only ~100 correlation times in the record the floor's estimate scatters ~5-10 %.
     model = IMU_GRADES["mti-g-700"]
     g, f = stationary_imu(model, hours=3.0, seed=11)
     taus = np.array([1.0, 100.0, 189.0])

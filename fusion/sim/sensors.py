@@ -259,7 +259,8 @@ class _TruthTail:
             t = np.concatenate([self.t, t])
             pos = np.concatenate([self.pos, pos])
             c = np.concatenate([self.c, c])
-        self.t, self.pos, self.c = t[-1:].copy(), pos[-1:].copy(), c[-1:].copy()
+        if t.size:
+            self.t, self.pos, self.c = t[-1:].copy(), pos[-1:].copy(), c[-1:].copy()
         return t, pos, c, first
 
 
