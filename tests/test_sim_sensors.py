@@ -320,6 +320,11 @@ def test_presets_and_spec_for_meta() -> None:
     assert IMU_GRADES["par10"].accel_vrw_mg_rthz == 1.0
     assert IMU_GRADES["mti-30"].gyro_arw_deg_rth == pytest.approx(6.0)
     assert IMU_GRADES["ideal"].is_ideal()
+    both = IMU_GRADES["mti-g-700"].combined_with(IMU_GRADES["par2"])
+    assert both.gyro_bias_offset_deg_h == (200.0, 200.0, 200.0)
+    assert both.gyro_bias_deg_h == 720.0 and both.gyro_bias_instability_deg_h == 10.0
+    both = IMU_GRADES["mti-g-700"].combined_with(IMU_GRADES["par5"])
+    assert both.gyro_arw_deg_rth == pytest.approx(math.hypot(0.6, 2.0))
     assert MG == pytest.approx(9.80665e-3)
     with pytest.raises(pydantic.ValidationError):
         ImuErrorModel(gyro_arw=1.0)  # type: ignore[call-arg]
@@ -498,6 +503,12 @@ def test_uwb_ranges_geometry_nlos_windows_and_range_limit() -> None:
     assert abs(res[~inside].mean()) < 0.002 and res[~inside].std() == pytest.approx(0.02, rel=0.1)
     assert np.all(res[inside] > 0.3 - 5 * 0.02) and np.all(res[inside] < 1.5 + 5 * 0.02)
     assert np.all(sim.last_nlos_bias[~inside] == 0.0) and np.all(sim.last_nlos_bias[inside] >= 0.3)
+    with pytest.raises(ValueError, match="unknown anchors"):
+        UwbSimulator(
+            model,
+            np.random.default_rng(0),
+            parse_faults([{"kind": "uwb_nlos", "t_start": 0, "t_end": 1, "anchors": ["B7"]}]),
+        )
     # staggered rounds: 40 Hz rounds of 5 anchors
     assert np.min(np.diff(t)) == pytest.approx(1 / 200.0)
 
