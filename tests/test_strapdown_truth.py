@@ -20,11 +20,14 @@ from analytic_truth import (
     WGS84_OMEGA,
     ShearerMotion,
     Synthetic,
+    Trajectory,
     c_b_n_from_euler,
     ecef_to_geodetic,
     geodetic_to_ecef,
+    harmonic,
     normal_gravity,
     pointwise,
+    polynomial,
     radii_of_curvature,
     rotvec_from_dcm,
     static_trajectory,
@@ -269,6 +272,37 @@ def test_free_inertial_one_hour_acceptance():
     assert horiz < 0.01, f"horizontal {horiz * 1e3:.2f} mm after 1 h"
     assert up < 0.05, f"height {up * 1e3:.2f} mm after 1 h"
     assert np.rad2deg(att) < 0.001, f"attitude {np.rad2deg(att):.2e}° after 1 h"
+
+
+def test_rocking_at_rest_creates_no_vertical_velocity():
+    """Diagnostic for the vertical channel: the IMU stands still and only rocks in pitch
+    (0.1° at 1.5 Hz, 100 s). The true specific force is constant in n, so any mean vertical
+    δv̇ is algorithmic. Dropping the second-order velocity rotation term
+    ``(1/6) Δθ × (Δθ × Δv)`` (Savage's ``(1 − sin φ/φ)/φ² φ×(φ×Δv)``) leaves
+    ``+(1/6) h² g ⟨ω_⊥²⟩`` (ω_⊥ the rate across f): here 2.2e-8 m/s², 2.2 µm/s in 100 s —
+    harmless per step, but the unstable vertical channel (τ = √(R/2g) ≈ 570 s) turns a
+    constant bias b into height error b τ² (cosh(t/τ) − 1) ≈ b × 9e7 s² after one hour (≈ 2 m
+    here, ≈ 1.2 m for the shearer motion above). A complete second-order update leaves < 1 %.
+    """
+    amp, hz = np.deg2rad(0.1), 1.5
+
+    def pos(t):
+        return [polynomial(t, [0.0]) for _ in range(3)]
+
+    def eul(t):
+        return [polynomial(t, [0.01]), harmonic(t, amp, hz, 0.3) + 0.02, polynomial(t, [1.6])]
+
+    syn = synthesize(Trajectory(ORIGIN, pos, eul, "rocking"), 100.0)
+    e = _errors(syn)
+    _report("rocking at rest", e)
+    w2 = 0.5 * (amp * 2 * np.pi * hz) ** 2
+    predicted = (0.01**2) * 9.8 * w2 / 6.0  # m/s² of the truncated term
+    rate = np.polyfit(e["t"], e["dv"][:, 2], 1)[0]
+    print(f"    vertical δv̇ {rate:.2e} m/s² (a missing (1/6)Δθ×(Δθ×Δv) gives {predicted:.2e})")
+    assert abs(rate) < 0.01 * predicted, (
+        f"vertical velocity drifts at {rate:.2e} m/s² under pure rocking "
+        f"({rate / predicted:.2f} × (1/6)h²g⟨ω⊥²⟩)"
+    )
 
 
 def _two_sample_residual(x: float) -> tuple[float, float]:
