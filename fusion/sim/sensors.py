@@ -63,9 +63,9 @@ Odometer (:class:`OdometerModel`, seed 000 eqs. 9–10, 18–20)
     (``C_j = ⌊D(t_j)·counts_per_m⌋``: the sub-count remainder is carried automatically), and the
     output is the mean speed over (t_{j−1}, t_j]: ``(C_j − C_{j−1}) / (counts_per_m · Δt)`` plus
     white noise. Rows removed by ``dropout(odometer)`` do not change the other rows (each row
-    is still the mean over its own sample interval). Note that δα_y (rotation about the odometer's own axis) does not affect a y-axis
-    odometer: only (1 + δk_D), δα_x and δα_z are observable, ``v_od ≈ (1 + δk_D)(v_y + δα_z v_x
-    − δα_x v_z)``.
+    is still the mean over its own sample interval). Note that δα_y (rotation about the
+    odometer's own axis) does not affect a y-axis odometer: only (1 + δk_D), δα_x and δα_z are
+    observable, ``v_od ≈ (1 + δk_D)(v_y + δα_z v_x − δα_x v_z)``.
 
 Magnetometer (:class:`MagnetometerModel`, seed 003 §3.2)
     Earth field in n: ``B^n = F [cos I sin D, cos I cos D, −sin I]`` (F intensity, I inclination
@@ -917,10 +917,10 @@ class UwbSimulator:
         self._next_s: int | None = None
         self._ids = model.anchor_ids
         for f in self.faults:
-            if isinstance(f, UwbNlos) and set(f.anchors) - set(self._ids):
+            unknown = sorted(set(f.anchors) - set(self._ids)) if isinstance(f, UwbNlos) else []
+            if unknown:
                 raise ValueError(
-                    f"uwb_nlos fault names unknown anchors {sorted(set(f.anchors) - set(self._ids))}"
-                    f" (known: {self._ids})"
+                    f"uwb_nlos fault names unknown anchors {unknown} (known: {self._ids})"
                 )
         self._anchors = np.array([model.anchors[a] for a in self._ids], dtype=float)
         self._p_nlos = model.nlos_probabilities()
