@@ -44,14 +44,14 @@ the exact matrix exponential of ``[[−F, Q], [0, Fᵀ]] Δt``.
 from __future__ import annotations
 
 import math
-from collections.abc import Iterable, Sequence
+from collections.abc import Iterable
 from dataclasses import dataclass, field
 from typing import Literal
 
 import numba
 import numpy as np
 import scipy.linalg
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, NDArray
 from scipy.spatial.transform import Rotation
 
 from fusion import earth
@@ -203,9 +203,9 @@ class ImuNoise:
 
 def common_blocks(
     imu: ImuNoise,
-    sigma_velocity: Sequence[float],
-    sigma_attitude: Sequence[float],
-    sigma_position: Sequence[float],
+    sigma_velocity: ArrayLike,
+    sigma_attitude: ArrayLike,
+    sigma_position: ArrayLike,
 ) -> tuple[StateBlock, ...]:
     """The 15 common error-state blocks with their priors (SI units)."""
     xyz = ("x", "y", "z")
@@ -213,9 +213,9 @@ def common_blocks(
     tau = imu.bias_correlation_time_s
     gm = imu.gyro_bias_instability > 0 or imu.accel_bias_instability > 0
     return (
-        StateBlock(VELOCITY, enu, tuple(sigma_velocity)),
-        StateBlock(ATTITUDE, enu, tuple(sigma_attitude)),
-        StateBlock(POSITION, enu, tuple(sigma_position)),
+        StateBlock(VELOCITY, enu, tuple(np.asarray(sigma_velocity, dtype=float).tolist())),
+        StateBlock(ATTITUDE, enu, tuple(np.asarray(sigma_attitude, dtype=float).tolist())),
+        StateBlock(POSITION, enu, tuple(np.asarray(sigma_position, dtype=float).tolist())),
         StateBlock(
             GYRO_BIAS,
             xyz,
