@@ -19,6 +19,9 @@ Every scenario starts with a static period (``static_start_s``, default 60 s, cy
 and ends with one (``static_end_s``). ``duration_s`` (optional) truncates the run or pads it
 with a static tail.
 
+A scenario file may start from another with ``extends: <preset name or path>``: its mapping is
+deep-merged onto the parent's.
+
 Overrides ``key.sub=value`` are parsed as YAML scalars (``1.5`` → float, ``false`` → bool,
 ``[1, 2]`` → list) and set on the dotted path of the raw mapping before validation; a path
 whose parent does not exist is an error naming it.
@@ -32,6 +35,17 @@ from typing import Any, Literal
 
 import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
+
+from fusion.sim.faults import FaultSpec
+from fusion.sim.sensors import (
+    IMU_GRADES,
+    ImuErrorModel,
+    MagnetometerModel,
+    OdometerModel,
+    PositionFixModel,
+    SupportModel,
+    UwbModel,
+)
 
 SCENARIO_DIR = Path(__file__).with_name("scenarios")
 
@@ -153,13 +167,43 @@ class Motion(_Strict):
 
 
 class Imu(_Strict):
-    """IMU output: rate, error grade (preset name or explicit model), exact-mean quadrature."""
+    """IMU output: rate, error grade, exact-mean quadrature, truth rate.
+
+    ``grade`` names a preset of :data:`fusion.sim.sensors.IMU_GRADES`; ``errors`` (an explicit
+    :class:`~fusion.sim.sensors.ImuErrorModel`) replaces it when given. ``truth_rate_hz``
+    (default: the IMU rate) must divide the IMU rate.
+    """
 
     rate_hz: float = Field(default=100.0, gt=0.0)
-    grade: str | None = "mti-g-700"
-    errors: dict[str, Any] | None = None
+    grade: str = "mti-g-700"
+    errors: ImuErrorModel | None = None
     quadrature_nodes: int = Field(default=6, ge=1, le=16)
     truth_rate_hz: float | None = Field(default=None, ge=10.0)
+
+    @model_validator(mode="after")
+    def _check(self) -> Imu:
+        if self.errors is None and self.grade not in IMU_GRADES:
+            raise ValueError(f"unknown IMU grade {self.grade!r} (known: {sorted(IMU_GRADES)})")
+        if self.truth_rate_hz is not None:
+            ratio = self.rate_hz / self.truth_rate_hz
+            if abs(ratio - round(ratio)) > 1e-9 or round(ratio) < 1:
+                raise ValueError("truth_rate_hz must divide rate_hz")
+        return self
+
+    @property
+    def error_model(self) -> ImuErrorModel:
+        """The IMU error model in effect."""
+        return self.errors if self.errors is not None else IMU_GRADES[self.grade]
+
+
+class Uwb(UwbModel):
+    """UWB section: :class:`~fusion.sim.sensors.UwbModel` plus the frame of ``anchors``.
+
+    ``anchors_frame: face`` gives each anchor as (along ξ, right η, height above the floor) in
+    face coordinates (converted to ENU with the scenario's floor); ``enu`` as ENU metres.
+    """
+
+    anchors_frame: Literal["enu", "face"] = "enu"
 
 
 class InitialSigma(_Strict):
@@ -192,11 +236,12 @@ class Scenario(_Strict):
     motion: Motion = Motion()
     imu: Imu = Imu()
     initial: Initial = Initial()
-    odometer: dict[str, Any] | None = None
-    magnetometer: dict[str, Any] | None = None
-    uwb: dict[str, Any] | None = None
-    support: dict[str, Any] | None = None
-    faults: list[dict[str, Any]] = Field(default_factory=list)
+    odometer: OdometerModel | None = None
+    magnetometer: MagnetometerModel | None = None
+    uwb: Uwb | None = None
+    support: SupportModel | None = None
+    position: PositionFixModel | None = None
+    faults: list[FaultSpec] = Field(default_factory=list)
 
     @model_validator(mode="after")
     def _one_shape(self) -> Scenario:
@@ -292,8 +337,12 @@ def preset_path(name: str) -> Path:
     return SCENARIO_DIR / f"{name}.yaml"
 
 
-def read_scenario_mapping(name_or_path: str | Path) -> tuple[dict[str, Any], str]:
-    """Raw mapping of a preset name or a YAML path, and a label for messages."""
+def read_scenario_mapping(name_or_path: str | Path, _depth: int = 0) -> tuple[dict[str, Any], str]:
+    """Raw mapping of a preset name or a YAML path, and a label for messages.
+
+    A top-level ``extends: <preset or path>`` merges the file onto that scenario (mappings
+    recursively, other values replaced).
+    """
     p = Path(name_or_path)
     if p.suffix in (".yaml", ".yml") or p.exists():
         path = p
@@ -308,7 +357,24 @@ def read_scenario_mapping(name_or_path: str | Path) -> tuple[dict[str, Any], str
         raise ScenarioError(f"cannot read scenario {path}: {exc}") from exc
     if not isinstance(data, dict):
         raise ScenarioError(f"invalid scenario {path}: top level must be a mapping")
+    base = data.pop("extends", None)
+    if base is not None:
+        if _depth > 8:
+            raise ScenarioError(f"scenario {path}: 'extends' nests too deep")
+        parent, _ = read_scenario_mapping(str(base), _depth=_depth + 1)
+        data = _deep_merge(parent, data)
     return data, str(path)
+
+
+def _deep_merge(base: dict[str, Any], over: dict[str, Any]) -> dict[str, Any]:
+    """``over`` merged onto ``base`` (mappings recursively, everything else replaced)."""
+    out = dict(base)
+    for key, value in over.items():
+        if isinstance(value, dict) and isinstance(out.get(key), dict):
+            out[key] = _deep_merge(out[key], value)
+        else:
+            out[key] = value
+    return out
 
 
 def load_scenario(name_or_path: str | Path, overrides: Sequence[str] = ()) -> Scenario:

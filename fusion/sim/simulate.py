@@ -1,0 +1,348 @@
+"""Orchestration: scenario → truth → exact IMU → sensor models → recording directory.
+
+The run is generated in chunks of ``scenario.chunk_s`` seconds (default 600 s) so that an
+8-hour shift needs bounded memory: each chunk of truth (:class:`~fusion.sim.trajectory.
+TruthChunk`) is passed to the chunk-aware sensor simulators of :mod:`fusion.sim.sensors`
+(which carry their own state across chunks) and the rows are appended to the CSV files at once.
+The CSV text is produced by the writer of :mod:`fusion.recording` (``repr``-exact floats), one
+chunk at a time; ``meta.yaml`` is validated by :class:`fusion.recording.RecordingMeta` and
+written last.
+
+Random streams are derived from the seed by fixed keys (``SeedSequence(seed, spawn_key=(k,))``:
+trajectory 1, IMU 2, odometer 3, magnetometer 4, UWB 5, support 6, position 7, initial-state
+perturbation 8), so switching one sensor off leaves every other realization unchanged, and the
+same seed gives byte-identical files.
+
+``meta.yaml`` holds the *perturbed* initial state (truth + a seeded draw from the scenario's
+1-σ, unless ``initial.perturb`` is false) with that σ, so that a filter starts with a realistic
+error; the true initial state, the injected faults (``{type, t_start, t_end, …}``), the AFC push
+events, the realized IMU errors, the scenario name and the seed are under ``extra:``.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Sequence
+from pathlib import Path
+from typing import IO, Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from fusion import recording as rec
+from fusion.earth import LocalFrame
+from fusion.sim.kinematics import ExactImu
+from fusion.sim.scenario import (
+    Scenario,
+    apply_overrides,
+    list_presets,
+    scenario_from_mapping,
+)
+from fusion.sim.scenario import (
+    load_scenario as _load_scenario,
+)
+from fusion.sim.sensors import (
+    ImuErrorSimulator,
+    MagnetometerSimulator,
+    OdometerSimulator,
+    PositionFixSimulator,
+    SupportSimulator,
+    UwbModel,
+    UwbSimulator,
+    spec_for_meta,
+)
+from fusion.sim.trajectory import Trajectory, TruthChunk
+
+STREAM_KEYS = {
+    "trajectory": 1,
+    "imu": 2,
+    "odometer": 3,
+    "magnetometer": 4,
+    "uwb": 5,
+    "support": 6,
+    "position": 7,
+    "initial": 8,
+}
+"""Spawn keys of the independent random streams."""
+
+
+def stream_rng(seed: int, name: str) -> np.random.Generator:
+    """The random generator of one component (see :data:`STREAM_KEYS`)."""
+    return np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(STREAM_KEYS[name],)))
+
+
+def load_scenario(name_or_path: str | Path, overrides: Sequence[str] = ()) -> Scenario:
+    """Load a preset by name or a scenario YAML file and apply ``key.sub=value`` overrides."""
+    return _load_scenario(name_or_path, overrides)
+
+
+def list_scenarios() -> list[tuple[str, str]]:
+    """``(name, one-line description)`` of the preset scenarios."""
+    return list_presets()
+
+
+class _CsvAppender:
+    """Appends chunks to one recording CSV with the writer of :mod:`fusion.recording`."""
+
+    def __init__(self, path: Path, stem: str, kinds: str) -> None:
+        self.path = path
+        self.header = rec.STREAM_COLUMNS[stem]
+        self.kinds = kinds
+        self.rows = 0
+        self._fh: IO[bytes] = open(path, "wb")
+        self._fh.write((",".join(self.header) + "\n").encode())
+
+    def append(self, columns: Sequence[NDArray[Any]]) -> None:
+        if len(columns[0]) == 0:
+            return
+        chunks = rec._csv_bytes_chunks(self.header, columns, self.kinds)
+        next(iter(chunks))  # the header, written once in __init__
+        for part in chunks:
+            self._fh.write(part)
+        self.rows += len(columns[0])
+
+    def close(self) -> None:
+        self._fh.close()
+
+
+def _as_scenario(scenario: Scenario | str | Path, overrides: Sequence[str]) -> Scenario:
+    if isinstance(scenario, Scenario):
+        if not overrides:
+            return scenario
+        data = scenario.model_dump(mode="json")
+        return scenario_from_mapping(apply_overrides(data, overrides), scenario.name)
+    return load_scenario(scenario, overrides)
+
+
+def _uwb_model(sc: Scenario, traj: Trajectory) -> UwbModel | None:
+    if sc.uwb is None:
+        return None
+    data = sc.uwb.model_dump()
+    frame = data.pop("anchors_frame")
+    if frame == "face":
+        data["anchors"] = {
+            k: tuple(round(float(x), 4) for x in traj.enu_from_face(*v))
+            for k, v in sc.uwb.anchors.items()
+        }
+    return UwbModel(**data)
+
+
+def _fault_list(sc: Scenario) -> list[dict[str, Any]]:
+    out = []
+    for f in sc.faults:
+        d = f.model_dump(mode="json")
+        kind = d.pop("kind")
+        out.append({"type": kind, **d})
+    return out
+
+
+def simulate(
+    scenario: Scenario | str | Path,
+    out_dir: str | Path,
+    *,
+    seed: int = 0,
+    overrides: Sequence[str] = (),
+    verbose: bool = False,
+) -> Path:
+    """Simulate a scenario into a recording directory.
+
+    Parameters
+    ----------
+    scenario
+        A :class:`Scenario`, a preset name or a YAML path.
+    out_dir
+        Output recording directory (created; files of this run are overwritten).
+    seed
+        Seed of every random draw; the same seed gives byte-identical files.
+    overrides
+        ``key.sub=value`` overrides applied before validation.
+    verbose
+        Print one progress line per chunk.
+
+    Returns
+    -------
+    Path
+        The recording directory.
+    """
+    sc = _as_scenario(scenario, overrides)
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    for old in out.glob("*.csv*"):
+        old.unlink()
+    frame = LocalFrame(sc.origin.lat_deg, sc.origin.lon_deg, sc.origin.height_m)
+    traj = Trajectory(sc, stream_rng(seed, "trajectory"))
+    exact = ExactImu(traj, frame, sc.imu.rate_hz, sc.imu.quadrature_nodes)
+    imu_model = sc.imu.error_model
+    imu_sim = ImuErrorSimulator(imu_model, sc.imu.rate_hz, stream_rng(seed, "imu"), sc.faults)
+    odo_sim = (
+        OdometerSimulator(sc.odometer, stream_rng(seed, "odometer"), sc.faults)
+        if sc.odometer is not None
+        else None
+    )
+    mag_sim = (
+        MagnetometerSimulator(sc.magnetometer, stream_rng(seed, "magnetometer"), sc.faults)
+        if sc.magnetometer is not None
+        else None
+    )
+    uwb_model = _uwb_model(sc, traj)
+    uwb_sim = (
+        UwbSimulator(uwb_model, stream_rng(seed, "uwb"), sc.faults)
+        if uwb_model is not None
+        else None
+    )
+    sup_sim = (
+        SupportSimulator(sc.support, stream_rng(seed, "support"), sc.faults)
+        if sc.support is not None
+        else None
+    )
+    pos_sim = (
+        PositionFixSimulator(sc.position, stream_rng(seed, "position"), sc.faults)
+        if sc.position is not None
+        else None
+    )
+    truth_step = 1
+    if sc.imu.truth_rate_hz is not None:
+        truth_step = round(sc.imu.rate_hz / sc.imu.truth_rate_hz)
+
+    files: dict[str, _CsvAppender] = {
+        "imu": _CsvAppender(out / "imu.csv", "imu", "fffffff"),
+        "truth": _CsvAppender(out / "truth.csv", "truth", "ffffffffffi"),
+    }
+    if odo_sim is not None:
+        files["odometer"] = _CsvAppender(out / "odometer.csv", "odometer", "ff")
+    if mag_sim is not None:
+        files["magnetometer"] = _CsvAppender(out / "magnetometer.csv", "magnetometer", "ffff")
+    if uwb_sim is not None:
+        files["uwb"] = _CsvAppender(out / "uwb.csv", "uwb", "fsf")
+    if sup_sim is not None:
+        files["support"] = _CsvAppender(out / "support.csv", "support", "ff")
+    if pos_sim is not None:
+        files["position"] = _CsvAppender(out / "position.csv", "position", "fffffff")
+
+    push_t = np.array([e.t for e in traj.push_events])
+    push_d = np.array([e.advance for e in traj.push_events])
+    first: TruthChunk | None = None
+    t_prev = -math.inf
+    started = time.perf_counter()
+    try:
+        for k0, k1 in exact.chunks(sc.chunk_s):
+            tc = exact.chunk(k0, k1)
+            if first is None:
+                first = tc
+            t, gyro, accel = imu_sim.apply_rows(tc.t, tc.gyro, tc.accel)
+            files["imu"].append([t, *gyro.T, *accel.T])
+            sel = np.arange(k0, k1) % truth_step == 0
+            files["truth"].append(
+                [
+                    tc.t[sel],
+                    *tc.position_enu[sel].T,
+                    *tc.velocity_enu[sel].T,
+                    *tc.attitude[sel].T,
+                    tc.cycle[sel],
+                ]
+            )
+            if odo_sim is not None:
+                to, speed = odo_sim.apply(tc)
+                files["odometer"].append([to, speed])
+            if mag_sim is not None:
+                tm, field = mag_sim.apply(tc)
+                files["magnetometer"].append([tm, *field.T])
+            if uwb_sim is not None and uwb_model is not None:
+                tu, idx, rng_m = uwb_sim.apply(tc)
+                names = np.asarray(uwb_model.anchor_ids, dtype=object)[idx]
+                files["uwb"].append([tu, names, rng_m])
+            if sup_sim is not None:
+                sel_p = (push_t > t_prev) & (push_t <= tc.t[-1])
+                ts, adv = sup_sim.apply(push_t[sel_p], push_d[sel_p])
+                files["support"].append([ts, adv])
+            if pos_sim is not None:
+                tp, enu, sig = pos_sim.apply(tc)
+                files["position"].append([tp, *enu.T, *sig.T])
+            t_prev = float(tc.t[-1])
+            if verbose:
+                print(
+                    f"{sc.name}: {t_prev:9.1f} / {traj.duration:.1f} s "
+                    f"({time.perf_counter() - started:6.1f} s)",
+                    flush=True,
+                )
+    finally:
+        for f in files.values():
+            f.close()
+    assert first is not None
+    meta = _meta(sc, seed, traj, first, imu_sim, uwb_model)
+    (out / "meta.yaml").write_text(rec._meta_yaml(meta), encoding="utf-8")
+    return out
+
+
+def _meta(
+    sc: Scenario,
+    seed: int,
+    traj: Trajectory,
+    first: TruthChunk,
+    imu_sim: ImuErrorSimulator,
+    uwb_model: UwbModel | None,
+) -> rec.RecordingMeta:
+    """meta.yaml contents (validated by :class:`fusion.recording.RecordingMeta`)."""
+    sig = sc.initial.sigma
+    pos = first.position_enu[0].copy()
+    vel = first.velocity_enu[0].copy()
+    att = np.rad2deg(first.attitude[0])
+    true_init = {
+        "position_enu_m": [float(x) for x in pos],
+        "velocity_enu_mps": [float(x) for x in vel],
+        "attitude_deg": {"roll": float(att[0]), "pitch": float(att[1]), "yaw": float(att[2])},
+    }
+    if sc.initial.perturb:
+        z = stream_rng(seed, "initial").standard_normal(9)
+        pos = pos + np.asarray(sig.position_m) * z[0:3]
+        vel = vel + np.asarray(sig.velocity_mps) * z[3:6]
+        att = att + np.asarray(sig.attitude_deg) * z[6:9]
+        att[2] = att[2] % 360.0
+    data: dict[str, Any] = {
+        "format": rec.FORMAT,
+        "name": sc.name,
+        "origin": sc.origin.model_dump(),
+        "initial": {
+            "position_enu_m": [float(x) for x in pos],
+            "velocity_enu_mps": [float(x) for x in vel],
+            "attitude_deg": {"roll": float(att[0]), "pitch": float(att[1]), "yaw": float(att[2])},
+            "sigma": {
+                "position_m": list(sig.position_m),
+                "velocity_mps": list(sig.velocity_mps),
+                "attitude_deg": list(sig.attitude_deg),
+            },
+        },
+        "imu": {"rate_hz": sc.imu.rate_hz, "spec": spec_for_meta(sc.imu.error_model)},
+    }
+    if sc.odometer is not None:
+        data["odometer"] = sc.odometer.meta()
+    if sc.magnetometer is not None:
+        data["magnetometer"] = sc.magnetometer.meta()
+    if uwb_model is not None:
+        data["uwb"] = uwb_model.meta()
+    if sc.position is not None:
+        data["position"] = sc.position.meta()
+    if sc.face is not None:
+        data["face"] = {
+            "length_m": sc.face.length_m,
+            "advance_m": sc.face.advance_m,
+            "ends_enu_m": [[round(x, 4) for x in e] for e in traj.face_ends_enu()],
+        }
+    data["extra"] = {
+        "simulator": "fusion.sim",
+        "scenario": sc.name,
+        "description": sc.description,
+        "seed": seed,
+        "duration_s": traj.duration,
+        "initial_perturbed": sc.initial.perturb,
+        "true_initial": true_init,
+        "imu_grade": sc.imu.grade if sc.imu.errors is None else "explicit",
+        "imu_errors_realized": imu_sim.realized(),
+        "vibration": sc.motion.vibration.enabled,
+        "faults": _fault_list(sc),
+        "push_events": [
+            {"t": round(e.t, 6), "advance_m": e.advance, "cycle": e.cycle} for e in traj.push_events
+        ],
+    }
+    return rec.RecordingMeta.model_validate(data)
