@@ -618,3 +618,62 @@ def test_fault_specs_weights_and_meta() -> None:
     ):
         with pytest.raises(pydantic.ValidationError):
             parse_faults([bad])
+
+
+@pytest.mark.parametrize(
+    "sizes",
+    [[10, 990, 1000, 1], [1, 1, 1, 2000, 7], [333, 334, 335, 2000], [4000]],
+    ids=["grid-aligned", "tiny", "odd", "two"],
+)
+def test_every_simulator_chunk_invariant(sizes: list[int]) -> None:
+    """Chunk boundaries on and off the sensor grids, sensor rates that do not divide 100 Hz."""
+    truth = moving_truth(duration=50.0)
+    faults = parse_faults(
+        [
+            {"kind": "odometer_slip", "t_start": 5.0, "t_end": 25.0, "ramp_s": 3.0},
+            {
+                "kind": "magnetic_interference",
+                "t_start": 9.0,
+                "t_end": 30.0,
+                "ramp_s": 5.0,
+                "field_uT": [3.0, 0.0, -2.0],
+            },
+            {"kind": "uwb_nlos", "t_start": 9.995, "t_end": 20.0, "anchors": ["A3"]},
+            {"kind": "dropout", "sensor": "magnetometer", "t_start": 12.0, "t_end": 13.0},
+        ]
+    )
+
+    def run(make: Any, chunks: list[Any]) -> list[np.ndarray]:
+        sim = make()
+        outs = [sim.apply(c) for c in chunks]
+        return [np.concatenate([o[k] for o in outs]) for k in range(len(outs[0]))]
+
+    makers = [
+        lambda: OdometerSimulator(
+            OdometerModel(
+                rate_hz=7.0, mounting_angles_deg=(1, 2, 3), counts_per_m=500.0, noise_sigma_mps=0.01
+            ),
+            np.random.default_rng(1),
+            faults,
+        ),
+        lambda: MagnetometerSimulator(
+            MagnetometerModel(rate_hz=33.0, hard_iron_uT=(1, 2, 3)),
+            np.random.default_rng(2),
+            faults,
+        ),
+        lambda: UwbSimulator(
+            uwb_model(rate_hz=17.0, nlos_probability=0.2, dropout_probability=0.1),
+            np.random.default_rng(3),
+            faults,
+        ),
+        lambda: PositionFixSimulator(
+            PositionFixModel(rate_hz=3.0, lever_arm_b_m=(0.1, 0.2, 0.3)), np.random.default_rng(4)
+        ),
+    ]
+    chunks = split_truth(truth, sizes)
+    for make in makers:
+        whole = run(make, [truth])
+        parts = run(make, chunks)
+        assert whole[0].size > 10
+        for w, p in zip(whole, parts, strict=True):
+            assert_identical(p, w)
