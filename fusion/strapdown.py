@@ -14,7 +14,11 @@ algorithm reduced to one speed, as in PSINS and KF-GINS):
 
       κ = T² / (6 T₁ (T₁ + T))
       φ_b   = Δθ_k + κ Δθ_{k-1} × Δθ_k
-      Δv_sf = Δv_k + ½ Δθ_k × Δv_k + κ (Δθ_{k-1} × Δv_k + Δv_{k-1} × Δθ_k)
+      Δv_sf = Δv_k + ½ Δθ_k × Δv_k + ⅙ Δθ_k × (Δθ_k × Δv_k) + κ (Δθ_{k-1} × Δv_k + Δv_{k-1} × Δθ_k)
+
+  (the second-order rotation term, Savage's (1 − sin φ/φ)/φ² φ×(φ×Δv), matters: without it
+  every rocking motion leaves a steady vertical error ⅙ T² g ⟨ω⊥²⟩ that the unstable vertical
+  channel turns into metres within an hour);
 
 * velocity, with the navigation-frame rotation ζ = ω_in^n T, the Coriolis and transport terms
   and normal gravity evaluated at mid-interval (extrapolated)::
@@ -86,7 +90,7 @@ def _step(
     else:
         phi_b = dtheta.copy()
         dv_scul = np.zeros(3)
-    dv_sf_b = dv + 0.5 * _cross(dtheta, dv) + dv_scul
+    dv_sf_b = dv + 0.5 * _cross(dtheta, dv) + _cross(dtheta, _cross(dtheta, dv)) / 6.0 + dv_scul
 
     # Mid-interval navigation quantities, extrapolated from the previous Δv^n.
     v_prev = nav[VEL : VEL + 3].copy()
