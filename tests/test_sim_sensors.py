@@ -666,6 +666,11 @@ def test_every_simulator_chunk_invariant(sizes: list[int]) -> None:
             np.random.default_rng(3),
             faults,
         ),
+        lambda: UwbSimulator(
+            uwb_model(nlos_probability={"A2": 0.5, "A4": 0.1}, nlos_mean_duration_s=0.7),
+            np.random.default_rng(5),
+            faults,
+        ),
         lambda: PositionFixSimulator(
             PositionFixModel(rate_hz=3.0, lever_arm_b_m=(0.1, 0.2, 0.3)), np.random.default_rng(4)
         ),
@@ -677,3 +682,29 @@ def test_every_simulator_chunk_invariant(sizes: list[int]) -> None:
         assert whole[0].size > 10
         for w, p in zip(whole, parts, strict=True):
             assert_identical(p, w)
+
+
+def test_uwb_nlos_episodes() -> None:
+    n = 600 * 100 + 1
+    t = np.arange(n) / RATE
+    att = np.tile([0.0, 0.0, 0.3], (n, 1))
+    truth = make_truth(t, np.tile([3.0, 4.0, 0.0], (n, 1)), np.zeros((n, 3)), att)
+    model = UwbModel(
+        anchors={"A": (0.0, 0.0, 0.0), "B": (1.0, 0.0, 0.0)},
+        rate_hz=10.0,
+        noise_sigma_m=0.0,
+        nlos_probability={"A": 0.3},
+        nlos_mean_duration_s=2.0,
+    )
+    sim = UwbSimulator(model, np.random.default_rng(21))
+    _, idx, _ = sim.apply(truth)
+    nlos = sim.last_nlos_bias[idx == 0] > 0
+    assert np.all(sim.last_nlos_bias[idx == 1] == 0.0)
+    assert 0.2 < nlos.mean() < 0.4
+    starts = np.flatnonzero(np.diff(nlos.astype(int)) == 1)
+    mean_len = nlos.sum() / 10.0 / max(starts.size, 1)  # s, 10 ranges per second
+    assert 1.5 < mean_len < 2.6, mean_len
+    with pytest.raises(pydantic.ValidationError):
+        UwbModel(anchors={"A": (0.0, 0.0, 0.0)}, nlos_probability={"Z": 0.1})
+    with pytest.raises(pydantic.ValidationError):
+        UwbModel(anchors={"A": (0.0, 0.0, 0.0)}, nlos_probability=1.5)

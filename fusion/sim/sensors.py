@@ -83,8 +83,11 @@ UWB (:class:`UwbModel`, seed 004 §2)
     requires strictly increasing times in uwb.csv. The tag is at ``p + C_b^n ℓ`` (lever arm ℓ in
     b) and ``r = max(0, ‖p_tag − a_i‖ + n + b_NLOS)``. NLOS: inside an ``uwb_nlos`` fault
     window affecting the anchor, the bias is uniform in the fault's ``bias_m``; outside, an
-    anchor is NLOS at random with its probability ``nlos_probability`` and bias uniform in
-    ``nlos_bias_range_m`` or exponential with mean ``nlos_bias_mean_m``. The bias is always ≥ 0.
+    anchor is NLOS at random with its probability ``nlos_probability`` — independently for
+    every range, or, with ``nlos_mean_duration_s`` > 0, in episodes of exponential length
+    (alternating renewal process whose long-run NLOS fraction is the probability) — with a bias
+    uniform in ``nlos_bias_range_m`` or exponential with mean ``nlos_bias_mean_m`` drawn per
+    range. The bias is always ≥ 0.
     Anchors whose true distance exceeds ``max_range_m``, random dropouts and ``dropout(uwb)``
     windows give absent rows.
 
@@ -103,7 +106,7 @@ from typing import Any, Literal, Protocol
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
-from pydantic import BaseModel, ConfigDict, Field, field_validator
+from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 from scipy.signal import lfilter
 
 from fusion.attitude import skew
@@ -864,6 +867,11 @@ class UwbModel(BaseModel):
     nlos_bias_distribution: Literal["uniform", "exponential"] = "uniform"
     nlos_bias_range_m: tuple[float, float] = (0.3, 1.5)
     nlos_bias_mean_m: float = Field(default=0.5, gt=0.0, description="exponential mean (m)")
+    nlos_mean_duration_s: float = Field(
+        default=0.0,
+        ge=0.0,
+        description="mean NLOS episode length (s); 0 = every range independent",
+    )
     dropout_probability: float = Field(default=0.0, ge=0.0, le=1.0)
 
     @field_validator("anchors")
@@ -872,6 +880,20 @@ class UwbModel(BaseModel):
         if not v:
             raise ValueError("at least one anchor is required")
         return v
+
+    @model_validator(mode="after")
+    def _check_nlos(self) -> UwbModel:
+        p = self.nlos_probability
+        values = p if isinstance(p, dict) else {"*": p}
+        unknown = sorted(set(values) - set(self.anchors) - {"*"})
+        if unknown:
+            raise ValueError(f"nlos_probability names unknown anchors {unknown}")
+        if any(not 0.0 <= v <= 1.0 for v in values.values()):
+            raise ValueError("nlos_probability values must lie in [0, 1]")
+        lo, hi = self.nlos_bias_range_m
+        if not 0.0 <= lo <= hi:
+            raise ValueError(f"nlos_bias_range_m must satisfy 0 <= lo <= hi, got {(lo, hi)}")
+        return self
 
     @property
     def anchor_ids(self) -> list[str]:
@@ -882,9 +904,6 @@ class UwbModel(BaseModel):
         """(n_anchors,) random-NLOS probability per anchor."""
         p = self.nlos_probability
         if isinstance(p, dict):
-            unknown = set(p) - set(self.anchors)
-            if unknown:
-                raise ValueError(f"nlos_probability names unknown anchors {sorted(unknown)}")
             return np.array([p.get(a, 0.0) for a in self.anchors], dtype=float)
         return np.full(len(self.anchors), float(p))
 
@@ -912,10 +931,13 @@ class UwbSimulator:
     ) -> None:
         self.model = model
         self.faults = _check_faults(faults)
-        self._s_noise, self._s_drop, self._s_event, self._s_bias = _spawn(rng, 4)
+        self._ids = model.anchor_ids
+        streams = _spawn(rng, 4 + len(self._ids))
+        self._s_noise, self._s_drop, self._s_event, self._s_bias = streams[:4]
+        self._s_episode = streams[4:]  # one per anchor: NLOS episode switching times
+        self._episode: list[tuple[bool, float] | None] = [None] * len(self._ids)
         self._tail = _TruthTail()
         self._next_s: int | None = None
-        self._ids = model.anchor_ids
         for f in self.faults:
             unknown = sorted(set(f.anchors) - set(self._ids)) if isinstance(f, UwbNlos) else []
             if unknown:
@@ -927,6 +949,38 @@ class UwbSimulator:
         self._lever = np.asarray(model.tag_lever_arm_b_m, dtype=float)
         self.last_nlos_bias = np.zeros(0)
         self.last_true_range = np.zeros(0)
+
+    def _episodes(self, k: int, ts: FloatArray) -> NDArray[np.bool_]:
+        """NLOS state of anchor k at its (increasing) slot times: alternating renewal process.
+
+        NLOS episodes last Exp(L) with L = ``nlos_mean_duration_s``, LOS gaps Exp(L (1 − p)/p),
+        so that the long-run NLOS fraction is p; the first state is drawn from the stationary
+        law (memoryless durations). Switching times are drawn lazily in time order, so the
+        sequence does not depend on the chunking.
+        """
+        p = float(self._p_nlos[k])
+        if ts.size == 0 or p <= 0.0:
+            return np.zeros(ts.size, dtype=bool)
+        if p >= 1.0:
+            return np.ones(ts.size, dtype=bool)
+        mean = {True: self.model.nlos_mean_duration_s}
+        mean[False] = mean[True] * (1.0 - p) / p
+        g = self._s_episode[k]
+        ep = self._episode[k]
+        if ep is None:
+            state = bool(g.random() < p)
+            ep = (state, float(ts[0]) + g.exponential(mean[state]))
+        state, t_switch = ep
+        switches: list[float] = []
+        while t_switch <= ts[-1]:
+            switches.append(t_switch)
+            state = not state
+            t_switch += g.exponential(mean[state])
+        n_before = np.searchsorted(np.asarray(switches), ts, side="right")
+        first_state = ep[0]
+        out = (n_before % 2 == 0) == first_state
+        self._episode[k] = (state, t_switch)
+        return out
 
     def apply(self, truth: TruthLike) -> tuple[FloatArray, NDArray[np.int64], FloatArray]:
         """UWB rows for one truth chunk.
@@ -965,7 +1019,14 @@ class UwbSimulator:
             random_bias = lo + u_bias * (hi - lo)
         else:
             random_bias = -m.nlos_bias_mean_m * np.log1p(-u_bias)
-        bias = np.where(u_event < self._p_nlos[idx], random_bias, 0.0)
+        if m.nlos_mean_duration_s > 0:
+            nlos = np.zeros(ns, dtype=bool)
+            for k in range(len(self._ids)):
+                sel = idx == k
+                nlos[sel] = self._episodes(k, ts[sel])
+        else:
+            nlos = u_event < self._p_nlos[idx]
+        bias = np.where(nlos, random_bias, 0.0)
         for k, aid in enumerate(self._ids):
             sel = idx == k
             act, flo, fhi = uwb_nlos_bias_range(self.faults, aid, ts[sel])
