@@ -135,6 +135,9 @@ class ExactImu:
         Gauss–Legendre nodes per interval.
     """
 
+    BLOCK_POINTS = 60_000
+    """Quadrature points evaluated at once (memory bound of one evaluation)."""
+
     def __init__(
         self, trajectory: Trajectory, frame: earth.LocalFrame, rate_hz: float, nodes: int = 6
     ) -> None:
@@ -160,17 +163,26 @@ class ExactImu:
         t = self.times(k0, k1)
         n = t.shape[0]
         dt = 1.0 / self.rate_hz
-        tq = (t[:, None] - dt) + dt * self._x[None, :]
-        q = point_imu(self.trajectory.evaluate(tq.ravel()), self.frame)
         m = self._x.shape[0]
         w = self._w[None, :, None]
-        gyro = (q.gyro.reshape(n, m, 3) * w).sum(axis=1)
-        accel = (q.accel.reshape(n, m, 3) * w).sum(axis=1)
-        vb_q = np.einsum("nji,nj->ni", q.c_b_n, q.velocity_n)[:, 1].reshape(n, m)
-        dist_inc = (vb_q * self._w[None, :]).sum(axis=1) * dt
+        gyro = np.empty((n, 3))
+        accel = np.empty((n, 3))
+        dist_inc = np.empty(n)
+        # quadrature points in blocks of ≈ 60 000 to bound the memory of the temporaries
+        block = max(1, self.BLOCK_POINTS // m)
+        for b0 in range(0, n, block):
+            b1 = min(n, b0 + block)
+            nb = b1 - b0
+            tq = (t[b0:b1, None] - dt) + dt * self._x[None, :]
+            q = point_imu(self.trajectory.evaluate(tq.ravel()), self.frame)
+            gyro[b0:b1] = (q.gyro.reshape(nb, m, 3) * w).sum(axis=1)
+            accel[b0:b1] = (q.accel.reshape(nb, m, 3) * w).sum(axis=1)
+            vb_q = np.einsum("nji,nj->ni", q.c_b_n, q.velocity_n)[:, 1].reshape(nb, m)
+            dist_inc[b0:b1] = (vb_q * self._w[None, :]).sum(axis=1) * dt
         if k0 == 0:
             dist_inc[0] = 0.0
-        odo = self._odo + np.cumsum(dist_inc)
+        # sequential sum seeded with the carried total: identical whatever the chunking
+        odo = np.cumsum(np.concatenate([[self._odo], dist_inc]))[1:]
         self._odo = float(odo[-1])
         self._next = k1
         p = point_imu(self.trajectory.evaluate(t), self.frame)

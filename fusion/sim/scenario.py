@@ -134,10 +134,14 @@ class Track(_Strict):
 
 
 class Stops(_Strict):
-    """Random stops while cutting: Poisson in time, uniform duration."""
+    """Random stops while cutting: Poisson in time (or exactly ``count`` per drive), uniform
+    position and duration."""
 
     rate_per_hour: float = Field(default=4.0, ge=0.0)
     duration_s: tuple[float, float] = (10.0, 90.0)
+    count: int | None = Field(
+        default=None, ge=0, description="exact number of stops per drive instead of Poisson"
+    )
 
 
 class Vibration(_Strict):

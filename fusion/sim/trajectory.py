@@ -296,8 +296,12 @@ class SplineTrack:
     def from_config(cls, cfg: Track, step: float = 0.02) -> SplineTrack:
         """Integrate the smoothed heading profile of ``cfg``'s polygon and fit the spline."""
         pts = np.asarray(cfg.waypoints_m, dtype=float)
-        if cfg.closed and not np.allclose(pts[0], pts[-1]):
-            pts = np.vstack([pts, pts[:1]])
+        if cfg.closed:
+            # start (and end each lap) in the middle of the first side, not inside a corner
+            if np.allclose(pts[0], pts[-1]):
+                pts = pts[:-1]
+            mid = 0.5 * (pts[0] + pts[1])
+            pts = np.vstack([mid, pts[1:], pts[:1], mid[None, :]])
         seg = np.diff(pts, axis=0)
         lengths = np.hypot(seg[:, 0], seg[:, 1])
         if np.any(lengths <= 0.0):
@@ -306,21 +310,20 @@ class SplineTrack:
         vert_s = np.concatenate([[0.0], np.cumsum(lengths)])
         total = float(vert_s[-1])
         turns = np.angle(np.exp(1j * np.diff(heads)))
-        vs = vert_s[1:-1]
-        if cfg.closed:
-            turns = np.append(turns, np.angle(np.exp(1j * (heads[0] - heads[-1]))))
-            vs = np.append(vs, total)
         n = max(math.ceil(total / step), 8)
         s = np.linspace(0.0, total, n + 1)
         lc = cfg.corner_length_m
+
+        def corner(center: float) -> Array:
+            return _s5(np.clip((s - center + 0.5 * lc) / lc, 0.0, 1.0))[0]
+
         head = np.full_like(s, heads[0])
-        for sv, dturn in zip(vs, turns, strict=True):
-            for shift in (0.0, -total) if cfg.closed else (0.0,):
-                x = (s - (sv + shift) + 0.5 * lc) / lc
-                head = head + dturn * _s5(np.clip(x, 0.0, 1.0))[0]
+        for sv, dturn in zip(vert_s[1:-1], turns, strict=True):
+            head = head + dturn * corner(sv)
         if cfg.closed:
-            # corner at the closing vertex also affects the start (shift −total above)
-            head = head - turns[-1] * _s5(np.clip((0.0 - total + 0.5 * lc) / lc, 0.0, 1.0))[0]
+            # the corner at the closing vertex is centred on s = 0 ≡ s = total
+            close = float(np.angle(np.exp(1j * (heads[0] - heads[-1]))))
+            head = head + close * (corner(total) + corner(0.0) - 1.0)
         xi = cumulative_trapezoid(np.cos(head), s, initial=0.0) + pts[0, 0]
         eta = cumulative_trapezoid(np.sin(head), s, initial=0.0) + pts[0, 1]
         xy = np.column_stack([xi, eta])
@@ -401,6 +404,7 @@ class _Schedule:
         stop_rate_h: float = 0.0,
         stop_duration: tuple[float, float] = (0.0, 0.0),
         change_rate_h: float = 0.0,
+        stop_count: int | None = None,
     ) -> None:
         """Travel ``length`` (≥ 0) in direction ``sign`` from rest to rest, with random events."""
         target = self.s + sign * length
@@ -418,7 +422,8 @@ class _Schedule:
         v = fit(rng.uniform(lo, hi), 0.98 * length)
         mean_time = length / max(0.5 * (lo + hi), 1e-9)
         events: list[tuple[float, int, float]] = []
-        for _ in range(rng.poisson(stop_rate_h * mean_time / 3600.0)):
+        n_stops = rng.poisson(stop_rate_h * mean_time / 3600.0)
+        for _ in range(n_stops if stop_count is None else stop_count):
             events.append((rng.uniform(0.0, length), 0, rng.uniform(*stop_duration)))
         for _ in range(rng.poisson(change_rate_h * mean_time / 3600.0)):
             events.append((rng.uniform(0.0, length), 1, rng.uniform(lo, hi)))
@@ -611,6 +616,7 @@ class Trajectory:
                 m.stops.rate_per_hour,
                 m.stops.duration_s,
                 m.speed_changes_per_hour,
+                m.stops.count,
             )
             if cyc == face.cycles:
                 break
@@ -654,6 +660,7 @@ class Trajectory:
             m.stops.rate_per_hour,
             m.stops.duration_s,
             m.speed_changes_per_hour,
+            m.stops.count,
         )
 
     # ---------------------------------------------------------------- evaluation
