@@ -1,0 +1,1663 @@
+"""Reader, validator and writer of recording directories (format ``shearer-recording/1``).
+
+A recording directory holds ``meta.yaml`` and one CSV file per sensor stream, as specified in
+``shared/RECORDING_FORMAT.md``.  This module implements that contract:
+
+* :func:`read_recording` parses a directory into a :class:`Recording` (typed numpy arrays per
+  stream plus the validated :class:`RecordingMeta`) and raises :class:`RecordingError` listing
+  *every* broken rule it found (file, line or key, and the rule), never a silent guess;
+* :func:`validate_recording` runs the same checks and returns the list of :class:`Problem`;
+* :func:`write_recording` writes a :class:`Recording` back, deterministically (byte-identical
+  files for identical input, ``repr``-exact floats, optional ``.csv.gz`` with a zero mtime).
+
+Rules checked (each broken one becomes a :class:`Problem`)
+---------------------------------------------------------
+``meta.yaml``: present, valid YAML, a mapping, no duplicate key, every required key present
+(reported by its dotted path, e.g. ``initial.sigma.position_m``), no unknown key outside the
+free-form ``extra:`` mapping (with the closest valid key suggested), right types, lengths and
+ranges (rates > 0, sigmas >= 0, finite numbers), ``format: shearer-recording/1``; the section of
+every present CSV file (``uwb`` with a non-empty ``uwb.anchors`` when ``uwb.csv`` is present).
+
+CSV files: ``imu.csv`` present; never both ``x.csv`` and ``x.csv.gz``; a header line whose first
+columns are exactly the required ones in order (extra columns after them are ignored); no
+empty line, missing field, empty cell, non-numeric cell, NaN or infinity; time strictly
+increasing; ``imu.csv`` with at least two samples; the sample rate ``rate_hz`` of ``imu``,
+``odometer``, ``magnetometer`` and ``uwb`` within 10 % of ``1 / median(sample interval)``; no gap
+in ``imu.csv`` longer than 5 median sample intervals (unless bridged explicitly with
+``bridge_imu_gaps=True``); physically possible values: ``|w| <= 50 rad/s`` and
+``|f| <= 200 m/s²`` per component, ``range >= 0``, position sigmas ``> 0``; ``anchor`` a key of
+``uwb.anchors``; truth ``cycle`` a non-negative integer.
+
+For ``uwb.csv`` the rate is checked *per anchor*: ``uwb.rate_hz`` is the rate at which the tag
+ranges to each anchor, compared with the median interval between consecutive ranges to the same
+anchor (anchors with fewer than two ranges are not checked).
+
+Every rule reports at most :data:`MAX_REPORTS_PER_RULE` occurrences per file, followed by one
+problem saying how many more lines break it.  Line numbers are 1-based file lines: the header is
+line 1, the first data row line 2.
+
+Reading is vectorized: :func:`numpy.loadtxt` over blocks of about 8 MB of whole lines; only a
+block where that fast path fails is re-read line by line to pinpoint every bad line (NaN and
+infinity are located without it).  A 3-million-row ``imu.csv`` reads in a few seconds.
+
+Two choices the format leaves open: a position sigma of exactly 0 is rejected like a negative one
+(a fix cannot be perfect, and a zero variance breaks the filter), and ``bridge_imu_gaps`` bridges
+gaps only explicitly, returning them in :attr:`Recording.imu_gaps` and logging a warning.
+"""
+
+from __future__ import annotations
+
+import difflib
+import gzip
+import io
+import logging
+import math
+import re
+import zlib
+from collections import Counter
+from collections.abc import Callable, Iterable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from types import UnionType
+from typing import Annotated, Any, Literal, NamedTuple, Union, get_args, get_origin
+
+import numpy as np
+import numpy.typing as npt
+import yaml
+from annotated_types import Ge, Gt, Le
+from pydantic import (
+    AllowInfNan,
+    BaseModel,
+    BeforeValidator,
+    ConfigDict,
+    Field,
+    Strict,
+    ValidationError,
+    field_validator,
+)
+
+__all__ = [
+    "FORMAT",
+    "MAX_ANGULAR_RATE_RADPS",
+    "MAX_IMU_GAP_INTERVALS",
+    "MAX_REPORTS_PER_RULE",
+    "MAX_SPECIFIC_FORCE_MPS2",
+    "RATE_TOLERANCE",
+    "STREAM_COLUMNS",
+    "Attitude",
+    "FaceMeta",
+    "ImuData",
+    "ImuMeta",
+    "ImuSpec",
+    "Initial",
+    "InitialSigma",
+    "MagnetometerData",
+    "MagnetometerMeta",
+    "OdometerData",
+    "OdometerMeta",
+    "Origin",
+    "PositionData",
+    "PositionMeta",
+    "Problem",
+    "Recording",
+    "RecordingError",
+    "RecordingMeta",
+    "SupportData",
+    "TruthData",
+    "UwbData",
+    "UwbMeta",
+    "load_meta",
+    "read_recording",
+    "validate_recording",
+    "write_recording",
+]
+
+_log = logging.getLogger(__name__)
+
+FORMAT = "shearer-recording/1"
+"""Value of the ``format`` key in ``meta.yaml``."""
+MAX_REPORTS_PER_RULE = 20
+"""Occurrences of one rule reported per file before a single "and N more" problem."""
+RATE_TOLERANCE = 0.10
+"""Largest accepted relative difference between ``rate_hz`` and the measured sample rate."""
+MAX_IMU_GAP_INTERVALS = 5.0
+"""An IMU interval longer than this many median sample intervals is a gap."""
+MAX_ANGULAR_RATE_RADPS = 50.0
+"""Largest physically possible angular-rate component (rad/s)."""
+MAX_SPECIFIC_FORCE_MPS2 = 200.0
+"""Largest physically possible specific-force component (m/s²)."""
+
+STREAM_COLUMNS: dict[str, tuple[str, ...]] = {
+    "imu": ("t", "wx", "wy", "wz", "fx", "fy", "fz"),
+    "odometer": ("t", "speed"),
+    "magnetometer": ("t", "mx", "my", "mz"),
+    "uwb": ("t", "anchor", "range"),
+    "support": ("t", "advance"),
+    "position": ("t", "e", "n", "u", "se", "sn", "su"),
+    "truth": ("t", "e", "n", "u", "ve", "vn", "vu", "roll", "pitch", "yaw", "cycle"),
+}
+"""Required leading columns of each CSV file, keyed by the file stem (``imu`` → ``imu.csv``)."""
+
+# Stream stem -> meta.yaml section that must be present when the file is (None: no section).
+_SECTION_OF: dict[str, str | None] = {
+    "imu": "imu",
+    "odometer": "odometer",
+    "magnetometer": "magnetometer",
+    "uwb": "uwb",
+    "support": None,
+    "position": "position",
+    "truth": None,
+}
+# Streams whose meta section carries a rate_hz that is checked against the data.
+_RATE_CHECKED = ("imu", "odometer", "magnetometer", "uwb")
+
+FloatArray = npt.NDArray[np.float64]
+IntArray = npt.NDArray[np.int64]
+
+
+# --------------------------------------------------------------------------------------------
+# Problems
+# --------------------------------------------------------------------------------------------
+
+
+class Problem(NamedTuple):
+    """One broken rule of the recording format.
+
+    Attributes
+    ----------
+    file : str
+        File name relative to the recording directory (``"imu.csv"``, ``"meta.yaml"``), or
+        ``""`` when the problem concerns the directory itself.
+    where : str
+        Location inside the file: ``"line 17"``, ``"line 17, column fz"``,
+        ``"key uwb.anchors.A3 (line 12)"``, ``"lines 100-101 (t=0.99..1.8 s)"`` or ``""``.
+    rule : str
+        Sentence naming the rule that is broken and what was found.
+    """
+
+    file: str
+    where: str
+    rule: str
+
+    def __str__(self) -> str:
+        """Return ``"file, where: rule"`` (empty parts left out)."""
+        prefix = ", ".join(part for part in (self.file, self.where) if part)
+        return f"{prefix}: {self.rule}" if prefix else self.rule
+
+
+class RecordingError(ValueError):
+    """A recording (or a solution file) breaks the format; lists every problem found.
+
+    Parameters
+    ----------
+    problems : list of Problem
+        All problems found.
+    path : str or Path, optional
+        The recording directory (or file) concerned; shown on the first line of the message.
+
+    Attributes
+    ----------
+    problems : list of Problem
+        All problems found, in file order.
+    path : Path or None
+        The recording directory or file.
+    """
+
+    def __init__(self, problems: Sequence[Problem], path: str | Path | None = None) -> None:
+        self.problems: list[Problem] = list(problems)
+        self.path: Path | None = Path(path) if path is not None else None
+        n = len(self.problems)
+        head = f"{self.path}: " if self.path is not None else ""
+        head += f"{n} problem{'s' if n != 1 else ''} with the recording format"
+        super().__init__("\n".join([head, *(f"  {p}" for p in self.problems)]))
+
+    def __reduce__(self) -> tuple[Any, ...]:
+        """Support pickling (e.g. across process pools)."""
+        return (type(self), (self.problems, self.path))
+
+
+class _Reporter:
+    """Collect problems of one file, capping the occurrences reported per rule."""
+
+    def __init__(self, file: str, cap: int = MAX_REPORTS_PER_RULE) -> None:
+        self.file = file
+        self.cap = cap
+        self.problems: list[Problem] = []
+        self._counts: Counter[str] = Counter()
+        self._summaries: dict[str, str] = {}
+
+    def add(self, key: str, where: str, rule: str, summary: str | None = None) -> None:
+        """Record one occurrence of rule ``key``."""
+        self._counts[key] += 1
+        if self._counts[key] <= self.cap:
+            self.problems.append(Problem(self.file, where, rule))
+        self._summaries.setdefault(key, summary or rule)
+
+    def add_many(
+        self,
+        key: str,
+        count: int,
+        make: Callable[[int], tuple[str, str]],
+        summary: str,
+    ) -> None:
+        """Record ``count`` occurrences; ``make(i)`` gives (where, rule) of the i-th one."""
+        if count <= 0:
+            return
+        room = max(0, self.cap - self._counts[key])
+        for i in range(min(room, count)):
+            where, rule = make(i)
+            self.problems.append(Problem(self.file, where, rule))
+        self._counts[key] += count
+        self._summaries.setdefault(key, summary)
+
+    def finish(self) -> list[Problem]:
+        """Return the problems, with one "and N more" line per rule that hit the cap."""
+        out = list(self.problems)
+        for key, count in self._counts.items():
+            if count > self.cap:
+                out.append(
+                    Problem(
+                        self.file,
+                        "",
+                        f"and {count - self.cap} more occurrences of: {self._summaries[key]}",
+                    )
+                )
+        return out
+
+
+# --------------------------------------------------------------------------------------------
+# meta.yaml models
+# --------------------------------------------------------------------------------------------
+
+
+def _check_len3(value: Any) -> Any:
+    if isinstance(value, list | tuple) and len(value) != 3:
+        raise ValueError(f"must be a list of 3 numbers, found {len(value)} items")
+    return value
+
+
+Real = Annotated[float, Strict(), AllowInfNan(False)]
+PositiveReal = Annotated[float, Strict(), AllowInfNan(False), Gt(0)]
+NonNegReal = Annotated[float, Strict(), AllowInfNan(False), Ge(0)]
+Vec3 = Annotated[tuple[Real, Real, Real], BeforeValidator(_check_len3)]
+NonNegVec3 = Annotated[tuple[NonNegReal, NonNegReal, NonNegReal], BeforeValidator(_check_len3)]
+
+_ANCHOR_ID = re.compile(r"[^\s,\"']+")
+
+
+class _Section(BaseModel):
+    model_config = ConfigDict(extra="forbid", validate_default=True)
+
+
+class Origin(_Section):
+    """WGS84 geodetic point that is the origin of the ENU frame."""
+
+    lat_deg: Annotated[Real, Ge(-90), Le(90)]
+    lon_deg: Annotated[Real, Ge(-180), Le(180)]
+    height_m: Real
+
+
+class Attitude(_Section):
+    """Roll, pitch and yaw in degrees (convention of the format: ψ clockwise from north)."""
+
+    roll: Real
+    pitch: Real
+    yaw: Real
+
+
+class InitialSigma(_Section):
+    """1-sigma uncertainty of the initial navigation state."""
+
+    position_m: NonNegVec3
+    velocity_mps: NonNegVec3
+    attitude_deg: NonNegVec3
+
+
+class Initial(_Section):
+    """Navigation state at the first IMU sample (ENU metres / m/s about the origin)."""
+
+    position_enu_m: Vec3
+    velocity_enu_mps: Vec3
+    attitude_deg: Attitude
+    sigma: InitialSigma
+
+
+class ImuSpec(_Section):
+    """Optional datasheet figures of the IMU, used as default tuning."""
+
+    gyro_bias_deg_h: NonNegReal | None = None
+    gyro_arw_deg_rth: NonNegReal | None = None
+    accel_bias_mg: NonNegReal | None = None
+    accel_vrw_mg_rthz: NonNegReal | None = None
+
+
+class ImuMeta(_Section):
+    """``imu`` section: sample rate and optional datasheet figures."""
+
+    rate_hz: PositiveReal
+    spec: ImuSpec | None = None
+
+
+class OdometerMeta(_Section):
+    """``odometer`` section."""
+
+    rate_hz: PositiveReal
+
+
+class MagnetometerMeta(_Section):
+    """``magnetometer`` section; the expected earth field figures are optional."""
+
+    rate_hz: PositiveReal
+    declination_deg: Real
+    field_uT: PositiveReal | None = None
+    inclination_deg: Annotated[Real, Ge(-90), Le(90)] | None = None
+
+
+class UwbMeta(_Section):
+    """``uwb`` section.
+
+    ``rate_hz`` is the ranging rate *per anchor*; ``anchors`` maps each anchor id (the values
+    of the ``anchor`` column of ``uwb.csv``) to its ENU position in metres.
+    """
+
+    rate_hz: PositiveReal
+    tag_lever_arm_b_m: Vec3 = (0.0, 0.0, 0.0)
+    anchors: dict[str, Vec3] = Field(default_factory=dict)
+
+    @field_validator("anchors", mode="before")
+    @classmethod
+    def _anchor_ids(cls, value: Any) -> Any:
+        """Accept numeric YAML keys (``1: [...]``) as ids and reject ids unusable in a CSV."""
+        if not isinstance(value, dict):
+            return value
+        out: dict[Any, Any] = {}
+        for key, item in value.items():
+            if isinstance(key, bool) or not isinstance(key, str | int):
+                raise ValueError(f"anchor id {key!r} must be a string")
+            name = str(key)
+            if not _ANCHOR_ID.fullmatch(name):
+                raise ValueError(
+                    f"anchor id {name!r} must be non-empty and contain no comma, quote or space"
+                )
+            out[name] = item
+        return out
+
+
+class PositionMeta(_Section):
+    """``position`` section: lever arm of the fixed point (antenna, prism) in the b-frame."""
+
+    lever_arm_b_m: Vec3 = (0.0, 0.0, 0.0)
+
+
+class FaceMeta(_Section):
+    """``face`` section: longwall geometry known in advance."""
+
+    length_m: PositiveReal | None = None
+    advance_m: PositiveReal | None = None
+    ends_enu_m: tuple[Vec3, Vec3] | None = None
+
+
+class RecordingMeta(_Section):
+    """Contents of ``meta.yaml``; unknown keys are rejected everywhere except under ``extra``."""
+
+    format: Literal["shearer-recording/1"]
+    name: str = ""
+    origin: Origin
+    initial: Initial
+    imu: ImuMeta
+    odometer: OdometerMeta | None = None
+    magnetometer: MagnetometerMeta | None = None
+    uwb: UwbMeta | None = None
+    position: PositionMeta | None = None
+    face: FaceMeta | None = None
+    extra: dict[str, Any] = Field(default_factory=dict)
+
+
+# --------------------------------------------------------------------------------------------
+# Stream data
+# --------------------------------------------------------------------------------------------
+
+
+def _as_float(name: str, value: Any, ndim: int, n: int | None = None) -> FloatArray:
+    arr = np.asarray(value, dtype=np.float64)
+    if ndim == 1 and arr.ndim != 1:
+        raise ValueError(f"{name} must be a 1-D array, got shape {arr.shape}")
+    if ndim == 2 and (arr.ndim != 2 or arr.shape[1] != 3):
+        raise ValueError(f"{name} must have shape (N, 3), got {arr.shape}")
+    if n is not None and arr.shape[0] != n:
+        raise ValueError(f"{name} has {arr.shape[0]} rows but t has {n}")
+    return arr
+
+
+def _as_int(name: str, value: Any, n: int) -> IntArray:
+    raw = np.asarray(value)
+    arr = raw.astype(np.int64)
+    if raw.ndim != 1 or arr.shape[0] != n:
+        raise ValueError(f"{name} must be a 1-D array of {n} integers, got shape {raw.shape}")
+    if raw.dtype.kind == "f" and not np.array_equal(arr, raw):
+        raise ValueError(f"{name} must hold integer values")
+    return arr
+
+
+def _set(obj: object, name: str, value: Any) -> None:
+    object.__setattr__(obj, name, value)
+
+
+@dataclass(frozen=True, eq=False)
+class ImuData:
+    """IMU samples: each the mean over ``(t_prev, t]``.
+
+    Attributes
+    ----------
+    t : ndarray, shape (N,)
+        Time (s), strictly increasing.
+    gyro : ndarray, shape (N, 3)
+        Angular rate of b relative to inertial space, in b (rad/s).
+    accel : ndarray, shape (N, 3)
+        Specific force in b (m/s²).
+    """
+
+    t: FloatArray
+    gyro: FloatArray
+    accel: FloatArray
+
+    def __post_init__(self) -> None:
+        t = _as_float("t", self.t, 1)
+        _set(self, "t", t)
+        _set(self, "gyro", _as_float("gyro", self.gyro, 2, len(t)))
+        _set(self, "accel", _as_float("accel", self.accel, 2, len(t)))
+
+
+@dataclass(frozen=True, eq=False)
+class OdometerData:
+    """Odometer samples: signed speed along the m-frame y axis (m/s)."""
+
+    t: FloatArray
+    speed: FloatArray
+
+    def __post_init__(self) -> None:
+        t = _as_float("t", self.t, 1)
+        _set(self, "t", t)
+        _set(self, "speed", _as_float("speed", self.speed, 1, len(t)))
+
+
+@dataclass(frozen=True, eq=False)
+class MagnetometerData:
+    """Magnetometer samples: flux density in b, shape (N, 3), in µT."""
+
+    t: FloatArray
+    field: FloatArray
+
+    def __post_init__(self) -> None:
+        t = _as_float("t", self.t, 1)
+        _set(self, "t", t)
+        _set(self, "field", _as_float("field", self.field, 2, len(t)))
+
+
+@dataclass(frozen=True, eq=False)
+class UwbData:
+    """UWB ranges, one per row.
+
+    Attributes
+    ----------
+    t : ndarray, shape (N,)
+        Time (s), strictly increasing.
+    anchor_index : ndarray of int64, shape (N,)
+        Index into ``anchor_ids`` of the anchor ranged to.
+    range : ndarray, shape (N,)
+        Measured range (m).
+    anchor_ids : tuple of str
+        Anchor ids in the order of ``uwb.anchors`` in meta.yaml.
+    """
+
+    t: FloatArray
+    anchor_index: IntArray
+    range: FloatArray
+    anchor_ids: tuple[str, ...]
+
+    def __post_init__(self) -> None:
+        t = _as_float("t", self.t, 1)
+        _set(self, "t", t)
+        idx = _as_int("anchor_index", self.anchor_index, len(t))
+        _set(self, "anchor_index", idx)
+        _set(self, "range", _as_float("range", self.range, 1, len(t)))
+        _set(self, "anchor_ids", tuple(str(a) for a in self.anchor_ids))
+        if idx.size and (idx.min() < 0 or idx.max() >= len(self.anchor_ids)):
+            raise ValueError("anchor_index out of range of anchor_ids")
+
+
+@dataclass(frozen=True, eq=False)
+class SupportData:
+    """AFC push events: at ``t`` the AFC advanced by ``advance`` metres."""
+
+    t: FloatArray
+    advance: FloatArray
+
+    def __post_init__(self) -> None:
+        t = _as_float("t", self.t, 1)
+        _set(self, "t", t)
+        _set(self, "advance", _as_float("advance", self.advance, 1, len(t)))
+
+
+@dataclass(frozen=True, eq=False)
+class PositionData:
+    """External position fixes (ENU m) of the point ``position.lever_arm_b_m``, with 1-sigma."""
+
+    t: FloatArray
+    enu: FloatArray
+    sigma: FloatArray
+
+    def __post_init__(self) -> None:
+        t = _as_float("t", self.t, 1)
+        _set(self, "t", t)
+        _set(self, "enu", _as_float("enu", self.enu, 2, len(t)))
+        _set(self, "sigma", _as_float("sigma", self.sigma, 2, len(t)))
+
+
+@dataclass(frozen=True, eq=False)
+class TruthData:
+    """Reference trajectory (scoring only).
+
+    Attributes
+    ----------
+    t : ndarray, shape (N,)
+    position : ndarray, shape (N, 3)
+        ENU m about the origin.
+    velocity : ndarray, shape (N, 3)
+        ENU m/s.
+    attitude : ndarray, shape (N, 3)
+        Roll, pitch, yaw (rad).
+    cycle : ndarray of int64, shape (N,)
+        Cutting-cycle index (1, 2, ...; 0 outside any cycle).
+    """
+
+    t: FloatArray
+    position: FloatArray
+    velocity: FloatArray
+    attitude: FloatArray
+    cycle: IntArray
+
+    def __post_init__(self) -> None:
+        t = _as_float("t", self.t, 1)
+        _set(self, "t", t)
+        for name in ("position", "velocity", "attitude"):
+            _set(self, name, _as_float(name, getattr(self, name), 2, len(t)))
+        _set(self, "cycle", _as_int("cycle", self.cycle, len(t)))
+
+
+@dataclass(frozen=True, eq=False)
+class Recording:
+    """A parsed recording directory.
+
+    Attributes
+    ----------
+    path : Path or None
+        Directory it was read from (None when built in memory).
+    meta : RecordingMeta
+    imu : ImuData
+    odometer, magnetometer, uwb, support, position, truth
+        Optional streams (None when the file is absent).
+    imu_gaps : list of (float, float)
+        IMU gaps ``(t_before, t_after)`` longer than 5 sample intervals that were accepted
+        because the recording was read with ``bridge_imu_gaps=True`` (empty otherwise).
+    """
+
+    path: Path | None
+    meta: RecordingMeta
+    imu: ImuData
+    odometer: OdometerData | None = None
+    magnetometer: MagnetometerData | None = None
+    uwb: UwbData | None = None
+    support: SupportData | None = None
+    position: PositionData | None = None
+    truth: TruthData | None = None
+    imu_gaps: list[tuple[float, float]] = field(default_factory=list)
+
+    @property
+    def duration_s(self) -> float:
+        """Time from the first to the last IMU sample (s)."""
+        t = self.imu.t
+        return float(t[-1] - t[0]) if t.size else 0.0
+
+
+# --------------------------------------------------------------------------------------------
+# meta.yaml reading
+# --------------------------------------------------------------------------------------------
+
+
+class _YamlLoader(yaml.SafeLoader):
+    """Safe loader that also reads ``1e5`` / ``2.5e-3`` as floats (YAML 1.2 style)."""
+
+
+_YamlLoader.yaml_implicit_resolvers = {
+    key: list(value) for key, value in yaml.SafeLoader.yaml_implicit_resolvers.items()
+}
+_YamlLoader.add_implicit_resolver(
+    "tag:yaml.org,2002:float",
+    re.compile(r"^[-+]?(?:[0-9][0-9_]*(?:\.[0-9_]*)?|\.[0-9_]+)[eE][-+]?[0-9]+$"),
+    list("-+0123456789."),
+)
+
+_Path = tuple[str | int, ...]
+
+
+def _dotted(path: Iterable[Any]) -> str:
+    out = ""
+    for part in path:
+        if isinstance(part, int):
+            out += f"[{part}]"
+        else:
+            out += ("." if out else "") + str(part)
+    return out
+
+
+def _walk_yaml(
+    node: yaml.Node, path: _Path, lines: dict[_Path, int], problems: list[Problem]
+) -> None:
+    """Record the line of every key / item and report duplicate keys."""
+    if isinstance(node, yaml.MappingNode):
+        seen: dict[Any, int] = {}
+        for key_node, value_node in node.value:
+            key: str | int = key_node.value if isinstance(key_node, yaml.ScalarNode) else "?"
+            line = key_node.start_mark.line + 1
+            child = (*path, key)
+            if key in seen:
+                problems.append(
+                    Problem(
+                        "meta.yaml",
+                        f"key {_dotted(child)} (line {line})",
+                        f"duplicate key {key!r} (first given on line {seen[key]})",
+                    )
+                )
+                continue
+            seen[key] = line
+            lines[child] = line
+            _walk_yaml(value_node, child, lines, problems)
+    elif isinstance(node, yaml.SequenceNode):
+        for i, item in enumerate(node.value):
+            child = (*path, i)
+            lines[child] = item.start_mark.line + 1
+            _walk_yaml(item, child, lines, problems)
+
+
+def _unwrap(tp: Any) -> Any:
+    while True:
+        origin = get_origin(tp)
+        if origin is Annotated:
+            tp = get_args(tp)[0]
+        elif origin in (Union, UnionType):
+            args = [a for a in get_args(tp) if a is not type(None)]
+            if len(args) != 1:
+                return tp
+            tp = args[0]
+        else:
+            return tp
+
+
+def _model_at(path: Sequence[Any]) -> type[BaseModel] | None:
+    """The meta model class found at ``path`` inside RecordingMeta (None if not a model)."""
+    tp: Any = RecordingMeta
+    for part in path:
+        tp = _unwrap(tp)
+        if isinstance(tp, type) and issubclass(tp, BaseModel):
+            info = tp.model_fields.get(str(part))
+            if info is None:
+                return None
+            tp = info.annotation
+        elif get_origin(tp) is dict:
+            tp = get_args(tp)[1]
+        else:
+            return None
+    tp = _unwrap(tp)
+    return tp if isinstance(tp, type) and issubclass(tp, BaseModel) else None
+
+
+def _suggest(word: str, options: Sequence[str]) -> str | None:
+    """The option closest to ``word`` (case-insensitive), or None when none is near."""
+    lower = {o.lower(): o for o in options}
+    hit = difflib.get_close_matches(word.lower(), list(lower), n=1, cutoff=0.6)
+    return lower[hit[0]] if hit else None
+
+
+def _short(value: Any) -> str:
+    text = repr(value)
+    return text if len(text) <= 60 else text[:57] + "..."
+
+
+def _pydantic_rule(err: Any) -> str:
+    """A sentence for one pydantic error dict."""
+    kind = err["type"]
+    loc = err["loc"]
+    value = err.get("input")
+    ctx = err.get("ctx") or {}
+    if kind == "missing":
+        return "required key is missing"
+    if kind == "extra_forbidden":
+        key = str(loc[-1])
+        model = _model_at(loc[:-1])
+        valid = sorted(model.model_fields) if model is not None else []
+        hint = _suggest(key, valid)
+        rule = f"unknown key {key!r}"
+        if hint:
+            rule += f" (did you mean {hint!r}?)"
+        if valid:
+            rule += f"; valid keys here: {', '.join(valid)}"
+        if not loc[:-1]:
+            rule += "; free-form entries belong under 'extra:'"
+        return rule
+    if kind == "literal_error":
+        return f"must be {ctx.get('expected', FORMAT)} (found {_short(value)})"
+    if kind in ("float_type", "float_parsing"):
+        return f"must be a number (found {_short(value)})"
+    if kind == "finite_number":
+        return f"must be a finite number (found {_short(value)})"
+    if kind == "greater_than":
+        return f"must be > {ctx['gt']:g} (found {_short(value)})"
+    if kind == "greater_than_equal":
+        return f"must be >= {ctx['ge']:g} (found {_short(value)})"
+    if kind == "less_than_equal":
+        return f"must be <= {ctx['le']:g} (found {_short(value)})"
+    if kind in ("tuple_type", "list_type"):
+        return f"must be a list (found {_short(value)})"
+    if kind == "too_long":
+        return f"must have {ctx.get('max_length')} items (found {ctx.get('actual_length')})"
+    if kind in ("model_type", "dict_type", "model_attributes_type"):
+        return f"must be a mapping of keys to values (found {_short(value)})"
+    if kind == "string_type":
+        return f"must be a string (found {_short(value)})"
+    if kind == "value_error":
+        return str(err["msg"]).removeprefix("Value error, ")
+    return str(err["msg"])
+
+
+def _meta_problems_from_validation(exc: ValidationError, lines: dict[_Path, int]) -> list[Problem]:
+    out: list[Problem] = []
+    for err in exc.errors():
+        loc = tuple(p for p in err["loc"] if p != "[key]")
+        where = f"key {_dotted(loc)}" if loc else ""
+        line = lines.get(loc)
+        if line is not None:
+            where += f" (line {line})"
+        out.append(Problem("meta.yaml", where, _pydantic_rule(err)))
+    return out
+
+
+def _parse_meta_text(text: str) -> tuple[Any, dict[_Path, int], list[Problem]]:
+    """Parse YAML text; returns (data, key line numbers, problems)."""
+    lines: dict[_Path, int] = {}
+    problems: list[Problem] = []
+    loader = _YamlLoader(text)
+    try:
+        node = loader.get_single_node()
+        if node is None:
+            return None, lines, [Problem("meta.yaml", "", "file is empty; expected a mapping")]
+        _walk_yaml(node, (), lines, problems)
+        data = loader.construct_document(node)
+    except yaml.YAMLError as exc:
+        mark = getattr(exc, "problem_mark", None)
+        where = f"line {mark.line + 1}" if mark is not None else ""
+        reason = getattr(exc, "problem", None) or str(exc)
+        return None, lines, [Problem("meta.yaml", where, f"invalid YAML: {reason}")]
+    finally:
+        loader.dispose()
+    if not isinstance(data, dict):
+        problems.append(
+            Problem("meta.yaml", "", f"must be a mapping of keys to values (found {_short(data)})")
+        )
+        return None, lines, problems
+    return data, lines, problems
+
+
+def load_meta(path: str | Path) -> RecordingMeta:
+    """Read and validate ``meta.yaml``.
+
+    Parameters
+    ----------
+    path : str or Path
+        A recording directory or the ``meta.yaml`` file itself.
+
+    Returns
+    -------
+    RecordingMeta
+
+    Raises
+    ------
+    RecordingError
+        When the file is missing or breaks the format (all problems listed).
+    """
+    path = Path(path)
+    file = path / "meta.yaml" if path.is_dir() else path
+    meta, _, _, problems = _load_meta(file)
+    if meta is None or problems:
+        raise RecordingError(problems, file)
+    return meta
+
+
+def _load_meta(
+    file: Path,
+) -> tuple[RecordingMeta | None, Any, dict[_Path, int], list[Problem]]:
+    """Return (model or None, raw data or None, key lines, problems)."""
+    if not file.is_file():
+        return None, None, {}, [Problem("meta.yaml", "", "required file is missing")]
+    try:
+        text = file.read_text(encoding="utf-8")
+    except (OSError, UnicodeDecodeError) as exc:
+        return None, None, {}, [Problem("meta.yaml", "", f"cannot read file: {exc}")]
+    raw, lines, problems = _parse_meta_text(text)
+    if raw is None:
+        return None, None, lines, problems
+    try:
+        meta = RecordingMeta.model_validate(raw)
+    except ValidationError as exc:
+        return None, raw, lines, problems + _meta_problems_from_validation(exc, lines)
+    return meta, raw, lines, problems
+
+
+# --------------------------------------------------------------------------------------------
+# CSV reading
+# --------------------------------------------------------------------------------------------
+
+_NUMBER = re.compile(r"\s*[+-]?(?:\d+\.?\d*|\.\d+)(?:[eE][+-]?\d+)?\s*")
+_NONFINITE = {"nan", "inf", "infinity"}
+
+
+@dataclass
+class _Table:
+    """Rows of a CSV file that parsed cleanly."""
+
+    values: FloatArray  # (N, k) numeric columns in order (text column slot holds NaN)
+    lines: IntArray  # (N,) 1-based file line of each row
+    text: npt.NDArray[np.str_] | None  # the text column, when there is one
+
+
+def _read_bytes(path: Path, label: str, rep: _Reporter) -> bytes | None:
+    try:
+        data = path.read_bytes()
+        if path.name.endswith(".gz"):
+            data = gzip.decompress(data)
+    except (OSError, EOFError, zlib.error, gzip.BadGzipFile) as exc:
+        rep.add("read", "", f"cannot read {label}: {exc}")
+        return None
+    if data.startswith(b"\xef\xbb\xbf"):
+        data = data[3:]
+    return data
+
+
+def _check_header(header: str, columns: Sequence[str], rep: _Reporter) -> bool:
+    found = header.split(",")
+    k = len(columns)
+    if found[:k] == list(columns):
+        return True
+    expected = ",".join(columns)
+    missing = [c for c in columns if c not in found]
+    if found and _NUMBER.fullmatch(found[0]):
+        rule = f"the first line must be the header '{expected}'; found a data row"
+    else:
+        rule = f"header must start with exactly the columns '{expected}' (found '{header}')"
+        if missing:
+            rule += f"; missing column{'s' if len(missing) > 1 else ''} " + ", ".join(
+                repr(c) for c in missing
+            )
+        else:
+            rule += "; columns out of order"
+        j = next(i for i, c in enumerate(columns) if i >= len(found) or found[i] != c)
+        if j < len(found):
+            rule += f" (column {j + 1} is {found[j]!r}, expected {columns[j]!r})"
+    rep.add("header", "line 1", rule)
+    return False
+
+
+_BLOCK_BYTES = 1 << 23  # the body is parsed in blocks of about 8 MB
+
+
+def _read_table(
+    path: Path, label: str, columns: Sequence[str], rep: _Reporter, text_col: int | None = None
+) -> _Table | None:
+    """Read one CSV file; None when it is unreadable or its header is wrong.
+
+    The body is parsed in blocks of whole lines with :func:`numpy.loadtxt`; a block that fails
+    (or whose row count shows skipped blank lines) is re-parsed line by line to report each
+    bad line, so one bad cell in a huge file costs one slow block, not a slow file.
+    """
+    data = _read_bytes(path, label, rep)
+    if data is None:
+        return None
+    nl = data.find(b"\n")
+    header_bytes = data if nl < 0 else data[:nl]
+    header = header_bytes.decode("utf-8", errors="replace").rstrip("\r")
+    if not header.strip() and (nl < 0 or not data[nl + 1 :].strip()):
+        rep.add("header", "", f"file is empty; expected the header line '{','.join(columns)}'")
+        return None
+    if not _check_header(header, columns, rep):
+        return None
+    k = len(columns)
+    pos = len(data) if nl < 0 else nl + 1
+    end = len(data)
+    while end > pos and data[end - 1] in b"\r\n":
+        end -= 1
+    values: list[FloatArray] = [np.empty((0, k))]
+    lines: list[IntArray] = [np.empty(0, dtype=np.int64)]
+    texts: list[npt.NDArray[np.str_]] = [np.empty(0, dtype=str)]
+    first_line = 2
+    while pos < end:
+        stop = min(end, pos + _BLOCK_BYTES)
+        if stop < end:
+            stop = data.find(b"\n", stop)
+            stop = end if stop < 0 or stop > end else stop
+        block = data[pos:stop]
+        n_lines = block.count(b"\n") + 1
+        parsed = _parse_block(block, n_lines, k, text_col)
+        if parsed is None:
+            parsed = _diagnose_block(block, first_line, columns, rep, text_col)
+            row_lines = parsed[2]
+        else:
+            row_lines = np.arange(first_line, first_line + n_lines, dtype=np.int64)
+        values.append(parsed[0])
+        texts.append(parsed[1])
+        lines.append(row_lines)
+        first_line += n_lines
+        pos = stop + 1
+    table = _Table(
+        np.concatenate(values),
+        np.concatenate(lines),
+        np.concatenate(texts) if text_col is not None else None,
+    )
+    _drop_nonfinite(table, columns, rep, text_col)
+    return table
+
+
+def _parse_block(
+    block: bytes, n_lines: int, k: int, text_col: int | None
+) -> tuple[FloatArray, npt.NDArray[np.str_], IntArray] | None:
+    """Vectorized parse of whole lines; None when any line is malformed."""
+    num_cols = [j for j in range(k) if j != text_col]
+    options: dict[str, Any] = {"delimiter": ",", "comments": None, "encoding": "utf-8"}
+    try:
+        num = np.loadtxt(io.BytesIO(block), usecols=num_cols, ndmin=2, dtype=np.float64, **options)
+        if num.shape[0] != n_lines:  # blank lines were skipped
+            return None
+        text = np.empty(0, dtype=str)
+        if text_col is not None:
+            text = np.loadtxt(io.BytesIO(block), usecols=(text_col,), ndmin=1, dtype=str, **options)
+            if text.shape[0] != n_lines or np.any(text == ""):
+                return None
+            num = np.insert(num, text_col, np.nan, axis=1)
+    except ValueError:  # includes UnicodeDecodeError
+        return None
+    return num, text, np.empty(0, dtype=np.int64)
+
+
+def _drop_nonfinite(
+    table: _Table, columns: Sequence[str], rep: _Reporter, text_col: int | None
+) -> None:
+    """Report NaN / inf cells (numpy parses them) and drop their rows."""
+    num_cols = [j for j in range(len(columns)) if j != text_col]
+    check = table.values if text_col is None else table.values[:, num_cols]
+    finite = np.isfinite(check)
+    if finite.all():
+        return
+    rows, cols = np.nonzero(~finite)
+    lines = table.lines
+    rep.add_many(
+        "nonfinite",
+        rows.size,
+        lambda i: (
+            f"line {lines[rows[i]]}, column {columns[num_cols[cols[i]]]}",
+            f"value {_num(check[rows[i], cols[i]])} is not a finite number "
+            "(missing samples are absent rows, not NaN or inf)",
+        ),
+        "a cell is NaN or infinite",
+    )
+    keep = finite.all(axis=1)
+    table.values, table.lines = table.values[keep], table.lines[keep]
+    if table.text is not None:
+        table.text = np.asarray(table.text)[keep]
+
+
+def _diagnose_block(
+    block: bytes, first_line: int, columns: Sequence[str], rep: _Reporter, text_col: int | None
+) -> tuple[FloatArray, npt.NDArray[np.str_], IntArray]:
+    """Line-by-line pass that reports every malformed line and keeps the good rows."""
+    k = len(columns)
+    rows: list[list[float]] = []
+    line_numbers: list[int] = []
+    texts: list[str] = []
+    expected = ",".join(columns)
+    for offset, raw_line in enumerate(block.decode("utf-8", errors="replace").split("\n")):
+        number = first_line + offset
+        line = raw_line[:-1] if raw_line.endswith("\r") else raw_line
+        if not line.strip():
+            rep.add(
+                "empty_line",
+                f"line {number}",
+                "empty line (missing samples are absent rows, not empty lines)",
+                "empty line",
+            )
+            continue
+        parts = line.split(",")
+        if len(parts) < k:
+            rep.add(
+                "fields",
+                f"line {number}",
+                f"expected at least {k} comma-separated fields ({expected}), found {len(parts)}",
+                f"fewer than {k} fields",
+            )
+            continue
+        row: list[float] = []
+        ok = True
+        for j in range(k):
+            cell = parts[j]
+            where = f"line {number}, column {columns[j]}"
+            if j == text_col:
+                if not cell:
+                    rep.add("empty", where, "empty cell", "empty cell")
+                    ok = False
+                row.append(math.nan)
+                continue
+            if _NUMBER.fullmatch(cell):
+                row.append(float(cell))
+                continue
+            ok = False
+            stripped = cell.strip()
+            if not stripped:
+                rep.add(
+                    "empty",
+                    where,
+                    "empty cell (missing samples are absent rows, not empty cells)",
+                    "empty cell",
+                )
+            elif stripped.lower().lstrip("+-") in _NONFINITE:
+                rep.add(
+                    "nonfinite",
+                    where,
+                    f"value {stripped!r} is not a finite number "
+                    "(missing samples are absent rows, not NaN or inf)",
+                    "a cell is NaN or infinite",
+                )
+            else:
+                rep.add(
+                    "nonnumeric",
+                    where,
+                    f"non-numeric value {_short(cell)} (a number with '.' decimal point expected)",
+                    "non-numeric cell",
+                )
+        if ok:
+            rows.append(row)
+            line_numbers.append(number)
+            if text_col is not None:
+                texts.append(parts[text_col])
+    return (
+        np.array(rows, dtype=np.float64).reshape(len(rows), k),
+        np.array(texts, dtype=str),
+        np.array(line_numbers, dtype=np.int64),
+    )
+
+
+# --------------------------------------------------------------------------------------------
+# Value checks (shared by the reader and the writer)
+# --------------------------------------------------------------------------------------------
+
+
+def _num(x: Any) -> str:
+    return repr(float(x))
+
+
+def _check_time(t: FloatArray, lines: IntArray, rep: _Reporter) -> None:
+    if t.size < 2:
+        return
+    bad = np.flatnonzero(np.diff(t) <= 0)
+    rep.add_many(
+        "time",
+        bad.size,
+        lambda i: (
+            f"line {lines[bad[i] + 1]}",
+            f"time must be strictly increasing (t={_num(t[bad[i] + 1])} after "
+            f"t={_num(t[bad[i]])} on line {lines[bad[i]]})",
+        ),
+        "time not strictly increasing",
+    )
+
+
+def _median_interval(t: FloatArray) -> float | None:
+    d = np.diff(t)
+    d = d[d > 0]
+    return float(np.median(d)) if d.size else None
+
+
+def _check_limit(
+    values: FloatArray,
+    lines: IntArray,
+    names: Sequence[str],
+    limit: float,
+    unit: str,
+    what: str,
+    rep: _Reporter,
+) -> None:
+    rows, cols = np.nonzero(np.abs(values) > limit)
+    rep.add_many(
+        f"limit_{what}",
+        rows.size,
+        lambda i: (
+            f"line {lines[rows[i]]}, column {names[cols[i]]}",
+            f"|{names[cols[i]]}| = {abs(values[rows[i], cols[i]]):.6g} {unit} exceeds the "
+            f"physical limit of {limit:g} {unit} for {what}",
+        ),
+        f"{what} beyond {limit:g} {unit}",
+    )
+
+
+def _check_positive(
+    values: FloatArray,
+    lines: IntArray,
+    names: Sequence[str],
+    rep: _Reporter,
+    *,
+    strict: bool,
+    what: str,
+) -> None:
+    bad_mask = values <= 0 if strict else values < 0
+    rows, cols = np.nonzero(bad_mask)
+    need = "positive" if strict else "non-negative"
+    rep.add_many(
+        f"sign_{what}",
+        rows.size,
+        lambda i: (
+            f"line {lines[rows[i]]}, column {names[cols[i]]}",
+            f"{what} must be {need} (found {_num(values[rows[i], cols[i]])})",
+        ),
+        f"{what} not {need}",
+    )
+
+
+def _check_cycle(cycle: FloatArray, lines: IntArray, rep: _Reporter) -> None:
+    bad = np.flatnonzero((cycle < 0) | (cycle != np.floor(cycle)))
+    rep.add_many(
+        "cycle",
+        bad.size,
+        lambda i: (
+            f"line {lines[bad[i]]}, column cycle",
+            f"cycle must be a non-negative integer (found {_num(cycle[bad[i]])})",
+        ),
+        "cycle not a non-negative integer",
+    )
+
+
+def _rate_problem(
+    section: str, rate: float, median: float, label: str, lines: dict[_Path, int], suffix: str = ""
+) -> Problem | None:
+    measured = 1.0 / median
+    if abs(measured - rate) <= RATE_TOLERANCE * rate:
+        return None
+    line = lines.get((section, "rate_hz"))
+    where = f"key {section}.rate_hz" + (f" (line {line})" if line else "")
+    return Problem(
+        "meta.yaml",
+        where,
+        f"rate_hz = {rate:g} Hz disagrees by more than {RATE_TOLERANCE:.0%} with {label}"
+        f"{suffix}, whose median sample interval is {median:.6g} s ({measured:.6g} Hz)",
+    )
+
+
+def _imu_gaps(t: FloatArray) -> tuple[IntArray, float]:
+    """Indices i with t[i+1] - t[i] longer than the gap threshold, and that threshold."""
+    median = _median_interval(t)
+    if median is None:
+        return np.empty(0, dtype=np.int64), math.inf
+    limit = MAX_IMU_GAP_INTERVALS * median
+    return np.flatnonzero(np.diff(t) > limit).astype(np.int64), limit
+
+
+# --------------------------------------------------------------------------------------------
+# Recording reading
+# --------------------------------------------------------------------------------------------
+
+
+def _positive_number(value: Any) -> float | None:
+    if isinstance(value, bool) or not isinstance(value, int | float):
+        return None
+    return float(value) if math.isfinite(value) and value > 0 else None
+
+
+def _raw_section(raw: Any, name: str) -> Any:
+    return raw.get(name) if isinstance(raw, dict) else None
+
+
+def _inspect(path: str | Path, *, bridge_imu_gaps: bool) -> tuple[Recording | None, list[Problem]]:
+    """Run every check; return the recording (None when any problem was found) and problems."""
+    root = Path(path)
+    if not root.is_dir():
+        return None, [Problem("", "", f"recording directory {str(root)!r} does not exist")]
+    meta, raw, key_lines, problems = _load_meta(root / "meta.yaml")
+
+    # Locate the CSV files (plain or gzip-compressed, never both).
+    files: dict[str, Path] = {}
+    for stem in STREAM_COLUMNS:
+        plain, packed = root / f"{stem}.csv", root / f"{stem}.csv.gz"
+        if plain.is_file() and packed.is_file():
+            problems.append(
+                Problem(
+                    f"{stem}.csv",
+                    "",
+                    f"both {stem}.csv and {stem}.csv.gz are present (ambiguous); keep one",
+                )
+            )
+        elif plain.is_file():
+            files[stem] = plain
+        elif packed.is_file():
+            files[stem] = packed
+    if "imu" not in files and not (root / "imu.csv").is_file():
+        problems.append(Problem("imu.csv", "", "required file is missing"))
+
+    # Sections required by the files present (checked on the raw YAML, so that they are
+    # reported even when another part of meta.yaml is invalid).
+    anchor_ids: list[str] | None = None
+    if raw is not None:
+        for stem in files:
+            section = _SECTION_OF[stem]
+            if section is None or stem == "imu":
+                continue
+            if _raw_section(raw, section) is None:
+                problems.append(
+                    Problem(
+                        "meta.yaml",
+                        f"key {section}",
+                        f"section {section!r} is required because {files[stem].name} is present",
+                    )
+                )
+        uwb_raw = _raw_section(raw, "uwb")
+        if "uwb" in files and isinstance(uwb_raw, dict):
+            anchors = uwb_raw.get("anchors")
+            if anchors is None or anchors == {}:
+                line = key_lines.get(("uwb", "anchors")) or key_lines.get(("uwb",))
+                problems.append(
+                    Problem(
+                        "meta.yaml",
+                        "key uwb.anchors" + (f" (line {line})" if line else ""),
+                        "a non-empty 'anchors' mapping is required because uwb.csv is present",
+                    )
+                )
+            elif isinstance(anchors, dict):
+                anchor_ids = [str(a) for a in anchors]
+    if meta is not None and meta.uwb is not None:
+        anchor_ids = list(meta.uwb.anchors)
+
+    def rate_of(section: str) -> float | None:
+        if meta is not None:
+            sec = getattr(meta, section)
+            return float(sec.rate_hz) if sec is not None else None
+        sec_raw = _raw_section(raw, section)
+        return _positive_number(sec_raw.get("rate_hz")) if isinstance(sec_raw, dict) else None
+
+    # Read and check every CSV file.
+    tables: dict[str, _Table] = {}
+    gaps: list[tuple[float, float]] = []
+    for stem, file in files.items():
+        rep = _Reporter(file.name)
+        table = _read_table(
+            file, file.name, STREAM_COLUMNS[stem], rep, 1 if stem == "uwb" else None
+        )
+        if table is not None:
+            _check_table(stem, table, rep, anchor_ids)
+            rate = rate_of(stem) if stem in _RATE_CHECKED else None
+            if rate is not None:
+                problems.extend(_check_rate(stem, file.name, table, rate, anchor_ids, key_lines))
+            if stem == "imu":
+                gaps = _check_imu_gaps(table, rep, report=not bridge_imu_gaps)
+            tables[stem] = table
+        problems.extend(rep.finish())
+
+    if problems or meta is None:
+        return None, problems
+    if bridge_imu_gaps and gaps:
+        _log.warning(
+            "%s: bridging %d IMU gap(s) longer than %g sample intervals: %s",
+            root,
+            len(gaps),
+            MAX_IMU_GAP_INTERVALS,
+            ", ".join(f"{a:.6g}..{b:.6g} s" for a, b in gaps[:5])
+            + (" ..." if len(gaps) > 5 else ""),
+        )
+    return _build(root, meta, tables, gaps if bridge_imu_gaps else []), []
+
+
+def _check_rate(
+    stem: str,
+    label: str,
+    table: _Table,
+    rate: float,
+    anchor_ids: list[str] | None,
+    key_lines: dict[_Path, int],
+) -> list[Problem]:
+    """Compare ``rate_hz`` with the median sample interval (per anchor for uwb)."""
+    t = table.values[:, 0]
+    found: list[Problem | None] = []
+    if stem != "uwb":
+        median = _median_interval(t)
+        if median is not None:
+            found.append(_rate_problem(stem, rate, median, label, key_lines))
+    elif anchor_ids and table.text is not None:
+        ids = np.asarray(table.text)
+        for anchor in anchor_ids:
+            median = _median_interval(t[ids == anchor])
+            if median is not None:
+                found.append(
+                    _rate_problem("uwb", rate, median, label, key_lines, f" for anchor {anchor}")
+                )
+    return [p for p in found if p is not None]
+
+
+def _check_imu_gaps(table: _Table, rep: _Reporter, *, report: bool) -> list[tuple[float, float]]:
+    """Report (or just return) the gaps of imu.csv longer than 5 median sample intervals."""
+    t, lines = table.values[:, 0], table.lines
+    if t.size < 2 and not rep.problems:
+        rep.add("count", "", f"at least 2 samples are required (found {t.size})")
+    idx, limit = _imu_gaps(t)
+    if report:
+        rep.add_many(
+            "gap",
+            idx.size,
+            lambda i: (
+                f"lines {lines[idx[i]]}-{lines[idx[i] + 1]} "
+                f"(t={_num(t[idx[i]])}..{_num(t[idx[i] + 1])} s)",
+                f"gap of {t[idx[i] + 1] - t[idx[i]]:.6g} s is longer than "
+                f"{MAX_IMU_GAP_INTERVALS:g} sample intervals ({limit:.6g} s); "
+                "read with bridge_imu_gaps=True to bridge it explicitly",
+            ),
+            "IMU gap longer than 5 sample intervals",
+        )
+    return [(float(t[i]), float(t[i + 1])) for i in idx]
+
+
+def _check_table(stem: str, table: _Table, rep: _Reporter, anchor_ids: list[str] | None) -> None:
+    v, lines = table.values, table.lines
+    columns = STREAM_COLUMNS[stem]
+    _check_time(v[:, 0], lines, rep)
+    if stem == "imu":
+        _check_limit(v[:, 1:4], lines, columns[1:4], MAX_ANGULAR_RATE_RADPS, "rad/s", "gyro", rep)
+        _check_limit(
+            v[:, 4:7], lines, columns[4:7], MAX_SPECIFIC_FORCE_MPS2, "m/s²", "accelerometer", rep
+        )
+    elif stem == "uwb":
+        _check_positive(v[:, 2:3], lines, columns[2:3], rep, strict=False, what="range")
+        if anchor_ids and table.text is not None:
+            ids = np.asarray(table.text)
+            unknown = np.flatnonzero(~np.isin(ids, np.asarray(anchor_ids)))
+            known = ", ".join(anchor_ids)
+
+            def make(i: int) -> tuple[str, str]:
+                bad = str(ids[unknown[i]])
+                hint = _suggest(bad, anchor_ids)
+                rule = f"unknown anchor id {bad!r} (meta.yaml uwb.anchors has {known})"
+                if hint:
+                    rule += f"; did you mean {hint!r}?"
+                return f"line {lines[unknown[i]]}, column anchor", rule
+
+            rep.add_many("anchor", unknown.size, make, "unknown anchor id")
+    elif stem == "position":
+        _check_positive(v[:, 4:7], lines, columns[4:7], rep, strict=True, what="sigma")
+    elif stem == "truth":
+        _check_cycle(v[:, 10], lines, rep)
+
+
+def _build(
+    root: Path | None,
+    meta: RecordingMeta,
+    tables: dict[str, _Table],
+    gaps: list[tuple[float, float]],
+) -> Recording:
+    def get(stem: str) -> FloatArray | None:
+        table = tables.get(stem)
+        return table.values if table is not None else None
+
+    imu = get("imu")
+    assert imu is not None
+    odo, mag, sup = get("odometer"), get("magnetometer"), get("support")
+    pos, tru = get("position"), get("truth")
+    uwb: UwbData | None = None
+    uwb_table = tables.get("uwb")
+    if uwb_table is not None:
+        assert meta.uwb is not None and uwb_table.text is not None
+        anchor_ids = tuple(meta.uwb.anchors)
+        lookup = {a: i for i, a in enumerate(anchor_ids)}
+        ids = np.asarray(uwb_table.text, dtype=str)
+        uniq, inverse = np.unique(ids, return_inverse=True)
+        index = np.array([lookup[str(u)] for u in uniq], dtype=np.int64)[inverse.reshape(-1)]
+        v = uwb_table.values
+        uwb = UwbData(t=v[:, 0], anchor_index=index, range=v[:, 2], anchor_ids=anchor_ids)
+    return Recording(
+        path=root,
+        meta=meta,
+        imu=ImuData(t=imu[:, 0], gyro=imu[:, 1:4], accel=imu[:, 4:7]),
+        odometer=OdometerData(t=odo[:, 0], speed=odo[:, 1]) if odo is not None else None,
+        magnetometer=MagnetometerData(t=mag[:, 0], field=mag[:, 1:4]) if mag is not None else None,
+        uwb=uwb,
+        support=SupportData(t=sup[:, 0], advance=sup[:, 1]) if sup is not None else None,
+        position=PositionData(t=pos[:, 0], enu=pos[:, 1:4], sigma=pos[:, 4:7])
+        if pos is not None
+        else None,
+        truth=TruthData(
+            t=tru[:, 0],
+            position=tru[:, 1:4],
+            velocity=tru[:, 4:7],
+            attitude=tru[:, 7:10],
+            cycle=tru[:, 10].astype(np.int64),
+        )
+        if tru is not None
+        else None,
+        imu_gaps=gaps,
+    )
+
+
+def read_recording(path: str | Path, *, bridge_imu_gaps: bool = False) -> Recording:
+    """Read and validate a recording directory.
+
+    Parameters
+    ----------
+    path : str or Path
+        The recording directory.
+    bridge_imu_gaps : bool, default False
+        Accept gaps in ``imu.csv`` longer than 5 sample intervals instead of rejecting the
+        recording; they are returned in :attr:`Recording.imu_gaps` (and logged as a warning) so
+        that the engine can report them.
+
+    Returns
+    -------
+    Recording
+
+    Raises
+    ------
+    RecordingError
+        Listing every problem found (file, line or key, rule), when the recording breaks the
+        format.
+    """
+    recording, problems = _inspect(path, bridge_imu_gaps=bridge_imu_gaps)
+    if problems or recording is None:
+        raise RecordingError(problems, path)
+    return recording
+
+
+def validate_recording(path: str | Path, *, bridge_imu_gaps: bool = False) -> list[Problem]:
+    """Check a recording directory against the format without raising for bad content.
+
+    Parameters
+    ----------
+    path : str or Path
+        The recording directory.
+    bridge_imu_gaps : bool, default False
+        Do not report IMU gaps (as with :func:`read_recording`).
+
+    Returns
+    -------
+    list of Problem
+        Every broken rule found; empty when the recording is valid.
+    """
+    return _inspect(path, bridge_imu_gaps=bridge_imu_gaps)[1]
+
+
+# --------------------------------------------------------------------------------------------
+# Writing
+# --------------------------------------------------------------------------------------------
+
+_CHUNK_ROWS = 65536
+
+
+def _csv_bytes_chunks(
+    header: Sequence[str], columns: Sequence[npt.NDArray[Any]], kinds: str
+) -> Iterable[bytes]:
+    """Yield the CSV text in chunks: floats as ``repr`` (exact), ints as ``%d``, text as is."""
+    yield (",".join(header) + "\n").encode()
+    n = len(columns[0]) if columns else 0
+    fmt = ",".join({"f": "%r", "i": "%d", "s": "%s"}[k] for k in kinds) + "\n"
+    for start in range(0, n, _CHUNK_ROWS):
+        stop = min(n, start + _CHUNK_ROWS)
+        parts = [c[start:stop].tolist() for c in columns]
+        yield "".join(map(fmt.__mod__, zip(*parts, strict=True))).encode()
+
+
+def _write_csv(
+    path: Path,
+    header: Sequence[str],
+    columns: Sequence[npt.NDArray[Any]],
+    kinds: str,
+    *,
+    compress: bool,
+) -> None:
+    """Write a CSV file (``path`` without ``.gz``); with ``compress`` write ``path.gz``."""
+    chunks = _csv_bytes_chunks(header, columns, kinds)
+    if compress:
+        with (
+            open(path.with_name(path.name + ".gz"), "wb") as raw,
+            gzip.GzipFile(filename="", mode="wb", fileobj=raw, mtime=0, compresslevel=6) as gz,
+        ):
+            for chunk in chunks:
+                gz.write(chunk)
+    else:
+        with open(path, "wb") as fh:
+            for chunk in chunks:
+                fh.write(chunk)
+
+
+def _meta_yaml(meta: RecordingMeta) -> str:
+    data = meta.model_dump(mode="json", exclude_none=True, exclude={"extra"})
+    if meta.extra:
+        data["extra"] = meta.extra
+    return yaml.safe_dump(
+        data, sort_keys=False, default_flow_style=None, allow_unicode=True, width=100
+    )
+
+
+def _stream_columns(
+    recording: Recording,
+) -> dict[str, tuple[list[npt.NDArray[Any]], str] | None]:
+    r = recording
+    out: dict[str, tuple[list[npt.NDArray[Any]], str] | None] = {}
+    out["imu"] = ([r.imu.t, *r.imu.gyro.T, *r.imu.accel.T], "fffffff")
+    out["odometer"] = ([r.odometer.t, r.odometer.speed], "ff") if r.odometer else None
+    out["magnetometer"] = (
+        ([r.magnetometer.t, *r.magnetometer.field.T], "ffff") if r.magnetometer else None
+    )
+    if r.uwb is not None:
+        names = np.asarray(r.uwb.anchor_ids, dtype=object)[r.uwb.anchor_index]
+        out["uwb"] = ([r.uwb.t, names, r.uwb.range], "fsf")
+    else:
+        out["uwb"] = None
+    out["support"] = ([r.support.t, r.support.advance], "ff") if r.support else None
+    out["position"] = (
+        ([r.position.t, *r.position.enu.T, *r.position.sigma.T], "fffffff") if r.position else None
+    )
+    if r.truth is not None:
+        tr = r.truth
+        out["truth"] = (
+            [tr.t, *tr.position.T, *tr.velocity.T, *tr.attitude.T, tr.cycle],
+            "ffffffffffi",
+        )
+    else:
+        out["truth"] = None
+    return out
+
+
+def _report_nonfinite(rep: _Reporter, lines: IntArray, bad: IntArray, name: str) -> None:
+    rep.add_many(
+        "nonfinite",
+        bad.size,
+        lambda i: (f"line {lines[bad[i]]}, column {name}", "value is not a finite number"),
+        "a value is NaN or infinite",
+    )
+
+
+def _writer_problems(
+    recording: Recording, streams: dict[str, tuple[list[npt.NDArray[Any]], str] | None]
+) -> list[Problem]:
+    """Format-level checks before writing: finite values, increasing time, sections, ids."""
+    problems: list[Problem] = []
+    meta = recording.meta
+    for stem, item in streams.items():
+        if item is None:
+            continue
+        label = f"{stem}.csv"
+        section = _SECTION_OF[stem]
+        if section is not None and getattr(meta, section) is None:
+            problems.append(
+                Problem("meta.yaml", f"key {section}", f"section {section!r} is required")
+            )
+        cols, kinds = item
+        rep = _Reporter(label)
+        lines = np.arange(2, len(cols[0]) + 2, dtype=np.int64)
+        names = STREAM_COLUMNS[stem]
+        for col, kind, name in zip(cols, kinds, names, strict=True):
+            if kind == "f":
+                _report_nonfinite(rep, lines, np.flatnonzero(~np.isfinite(col)), name)
+        _check_time(np.asarray(cols[0], dtype=np.float64), lines, rep)
+        if stem == "truth":
+            _check_cycle(np.asarray(cols[-1], dtype=np.float64), lines, rep)
+        if stem == "imu" and len(cols[0]) < 2:
+            rep.add("count", "", "at least 2 samples are required")
+        problems.extend(rep.finish())
+    if recording.uwb is not None and meta.uwb is not None:
+        unknown = sorted(set(recording.uwb.anchor_ids) - set(meta.uwb.anchors))
+        if unknown:
+            problems.append(
+                Problem("meta.yaml", "key uwb.anchors", f"anchor ids {unknown} are not defined")
+            )
+    return problems
+
+
+def write_recording(recording: Recording, path: str | Path, *, compress: bool = False) -> None:
+    """Write a recording directory.
+
+    The output is deterministic: identical input gives byte-identical files.  Floats are
+    written with ``repr`` (the shortest string that reads back to the same float64), so a
+    written recording reads back with bit-identical arrays.  Stale recording files of streams
+    that are absent (or in the other compression variant) are removed, so that the directory
+    holds exactly this recording.
+
+    Parameters
+    ----------
+    recording : Recording
+        The recording to write; ``recording.path`` and ``imu_gaps`` are not written.
+    path : str or Path
+        Output directory (created when missing).
+    compress : bool, default False
+        Write ``*.csv.gz`` (gzip with a zero mtime in its header) instead of ``*.csv``.
+
+    Raises
+    ------
+    RecordingError
+        When the recording cannot be written as a valid file set (non-finite values, time not
+        strictly increasing, a stream without its meta.yaml section, an undefined anchor id).
+    """
+    root = Path(path)
+    streams = _stream_columns(recording)
+    problems = _writer_problems(recording, streams)
+    if problems:
+        raise RecordingError(problems, root)
+    root.mkdir(parents=True, exist_ok=True)
+    (root / "meta.yaml").write_text(_meta_yaml(recording.meta), encoding="utf-8")
+    for stem, item in streams.items():
+        plain, packed = root / f"{stem}.csv", root / f"{stem}.csv.gz"
+        stale = [plain, packed] if item is None else [plain if compress else packed]
+        for old in stale:
+            old.unlink(missing_ok=True)
+        if item is not None:
+            cols, kinds = item
+            _write_csv(plain, STREAM_COLUMNS[stem], cols, kinds, compress=compress)
