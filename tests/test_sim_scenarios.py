@@ -89,6 +89,16 @@ def test_overrides_apply_and_name_bad_paths() -> None:
         load_scenario("longwall-200m", ["face.length_m=-5"])
 
 
+def test_vibration_switch_shorthand_and_scenario_object_overrides(tmp_path: Path) -> None:
+    sc = load_scenario("longwall-200m", ["motion.vibration=false"])
+    assert not sc.motion.vibration.enabled
+    base = load_scenario("seed003-brokenline")
+    out = simulate(base, tmp_path / "s", seed=2, overrides=["duration_s=70", "odometer.rate_hz=5"])
+    rec = read_recording(out)
+    assert rec.meta.odometer is not None and rec.meta.odometer.rate_hz == 5
+    assert rec.imu.t[-1] == pytest.approx(70.0)
+
+
 def test_yaml_errors_name_the_key_path(tmp_path: Path) -> None:
     bad = tmp_path / "bad.yaml"
     bad.write_text(

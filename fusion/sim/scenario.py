@@ -34,7 +34,14 @@ from pathlib import Path
 from typing import Any, Literal
 
 import yaml
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
+from pydantic import (
+    BaseModel,
+    ConfigDict,
+    Field,
+    ValidationError,
+    field_validator,
+    model_validator,
+)
 
 from fusion.sim.faults import FaultSpec
 from fusion.sim.sensors import (
@@ -168,6 +175,12 @@ class Motion(_Strict):
     speed_changes_per_hour: float = Field(default=6.0, ge=0.0)
     stops: Stops = Stops()
     vibration: Vibration = Vibration()
+
+    @field_validator("vibration", mode="before")
+    @classmethod
+    def _vibration_switch(cls, v: Any) -> Any:
+        """``vibration: false`` / ``true`` is shorthand for ``vibration: {enabled: …}``."""
+        return {"enabled": v} if isinstance(v, bool) else v
 
 
 class Imu(_Strict):
