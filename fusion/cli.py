@@ -20,7 +20,7 @@ examples:
 """
 
 DEFAULT_DEMO_SCENARIO = "seed000-carrier"
-DEFAULT_DEMO_CONFIG = "sins_only"
+DEFAULT_DEMO_CONFIG = "sins_od_ckf"
 
 
 class _Progress:

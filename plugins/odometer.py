@@ -1,0 +1,111 @@
+"""Odometer + motion constraint (seed 000 §2.1, eqs. 1–4, 10, 18–20; seed 003 eqs. 7–17).
+
+The odometer frame m is the IMU body frame turned by the mounting matrix ``C_b^m``; the shearer
+moves along the m-frame y axis only (motion constraint: no lateral, no vertical velocity), and
+the haulage encoder measures that speed with a scale error: ``s̃ = (1 + δk_D) v^m_y``.
+
+With the nominal mounting ``C̃_b^m = C_b^m (I + δα×)`` (seed 000 eq. 10) and the SINS attitude
+``C̃_n^b = C_n^b (I + φ×)``, the SINS velocity in m is, to first order,
+
+    ṽ^m = C̃_b^m C̃_n^b ṽ^n = v^m + C_b^m C_n^b δv − C_b^m C_n^b (v^n×) φ − C_b^m (v^b×) δα
+
+and the true ``v^m = [0, s̃ (1 − δk_D), 0]``. The measurement (mode ``odometer``) is
+
+    z = ṽ^m − [0, s̃, 0]
+    H = [C_b^m C_n^b,  −C_b^m C_n^b (v^n×),  0,  0,  0,  …,  −C_b^m (v^b×),  [0, −ṽ^m_y, 0]ᵀ]
+
+(columns δv, φ, δp, ε, ∇, then this plugin's δα (3) and δk_D). Mode ``motion_constraint``
+keeps only the x and z rows and needs no odometer (seed 002 eq. 17); it runs at the rate given
+in the options on the IMU clock and owns only δα. The odometer lever arm is neglected (the
+shearer turns at < 0.1°/s, so ω × l is below 1 mm/s for a lever arm of a metre).
+δα_y does not enter any row (a rotation about the travel direction leaves v^m unchanged), so its
+σ stays at its prior — the seed's observability analysis (§3.3).
+"""
+
+from __future__ import annotations
+
+from typing import Literal
+
+import numpy as np
+from numpy.typing import NDArray
+from pydantic import Field
+
+from fusion.attitude import dcm_from_euler, skew
+from fusion.error_model import ATTITUDE, VELOCITY, StateBlock
+from fusion.plugin import Measurement, MeasurementContext, Plugin, PluginOptions
+from fusion.recording import Recording
+
+
+class OdometerOptions(PluginOptions):
+    """Options of the odometer / motion-constraint plugin."""
+
+    mode: Literal["odometer", "motion_constraint"] = "odometer"
+    sigma_speed_mps: float = Field(0.01, gt=0, description="odometer speed noise, 1σ")
+    sigma_lateral_mps: float = Field(0.01, gt=0, description="motion-constraint noise, 1σ")
+    sigma_vertical_mps: float = Field(0.01, gt=0, description="motion-constraint noise, 1σ")
+    mounting_deg: tuple[float, float, float] = Field(
+        (0.0, 0.0, 0.0), description="nominal m-frame mounting (roll, pitch, yaw) relative to b"
+    )
+    mounting_sigma_deg: float = Field(2.0, gt=0, description="prior σ of each δα")
+    scale_sigma: float = Field(0.03, gt=0, description="prior σ of δk_D")
+    constraint_rate_hz: float = Field(10.0, gt=0, description="motion_constraint mode only")
+
+
+class Odometer(Plugin):
+    """Odometer speed along the travel axis plus zero lateral and vertical velocity."""
+
+    Options = OdometerOptions
+    options: OdometerOptions
+
+    def __init__(self, name: str, options: OdometerOptions, recording: Recording) -> None:
+        super().__init__(name, options, recording)
+        self.use_speed = options.mode == "odometer"
+        if self.use_speed and recording.odometer is None:
+            raise ValueError(
+                f"plugin {name!r} (mode odometer) needs odometer.csv; "
+                "use mode: motion_constraint without one"
+            )
+        r, p, y = np.deg2rad(options.mounting_deg)
+        # C_b^m from the mounting angles in the recording's attitude convention (m relative to b).
+        self.c_b_m = dcm_from_euler(r, p, y).T
+        self.rows = np.array([0, 1, 2]) if self.use_speed else np.array([0, 2])
+        self.variance = np.array(
+            [options.sigma_lateral_mps, options.sigma_speed_mps, options.sigma_vertical_mps]
+        )[self.rows] ** 2
+
+    def state_blocks(self) -> tuple[StateBlock, ...]:
+        """Mounting angles δα (3) and, with an odometer, its scale factor error δk_D."""
+        sig = np.deg2rad(self.options.mounting_sigma_deg)
+        blocks = [StateBlock(f"{self.name}.mounting_angles", ("x", "y", "z"), (sig,) * 3)]
+        if self.use_speed:
+            blocks.append(
+                StateBlock(f"{self.name}.scale_error", ("k",), (self.options.scale_sigma,))
+            )
+        return tuple(blocks)
+
+    def epochs(self) -> NDArray[np.float64]:
+        """Odometer times, or a regular grid on the IMU clock for the constraint alone."""
+        if self.use_speed:
+            assert self.recording.odometer is not None
+            return self.recording.odometer.t
+        t = self.recording.imu.t
+        return np.arange(t[0], t[-1], 1.0 / self.options.constraint_rate_hz)[1:]
+
+    def measure(self, index: int, ctx: MeasurementContext) -> Measurement:
+        """Residual of the SINS velocity in m against the odometer and the constraint."""
+        c_n_b = ctx.c_b_n.T
+        c_n_m = self.c_b_m @ c_n_b
+        v_b = c_n_b @ ctx.velocity
+        measured = np.zeros(3)
+        if self.use_speed:
+            assert self.recording.odometer is not None
+            measured[1] = self.recording.odometer.speed[index]
+        v_m = c_n_m @ ctx.velocity
+        z = v_m - measured
+        h = np.zeros((3, ctx.layout.dim))
+        h[:, ctx.layout.slice(VELOCITY)] = c_n_m
+        h[:, ctx.layout.slice(ATTITUDE)] = -c_n_m @ skew(ctx.velocity)
+        h[:, ctx.layout.slice(f"{self.name}.mounting_angles")] = -self.c_b_m @ skew(v_b)
+        if self.use_speed:
+            h[1, ctx.layout.slice(f"{self.name}.scale_error")] = -v_m[1]
+        return Measurement(z[self.rows], h[self.rows], np.diag(self.variance))

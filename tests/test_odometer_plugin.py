@@ -1,0 +1,102 @@
+"""Odometer + motion constraint: H against numerical differentiation of the nonlinear model."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from fusion.attitude import dcm_from_euler, dcm_from_quat, quat_from_rotvec, quat_multiply
+from fusion.earth import LocalFrame
+from fusion.error_model import ImuNoise, StateLayout, common_blocks
+from fusion.plugin import MeasurementContext
+from fusion.recording import ImuData, OdometerData, Recording, RecordingMeta
+from plugins.odometer import Odometer, OdometerOptions
+
+FRAME = LocalFrame(34.0, 117.0, 40.0)
+
+
+def _recording(speed: float) -> Recording:
+    meta = RecordingMeta.model_validate(
+        {
+            "format": "shearer-recording/1",
+            "origin": {"lat_deg": 34.0, "lon_deg": 117.0, "height_m": 40.0},
+            "initial": {
+                "position_enu_m": [0, 0, 0],
+                "velocity_enu_mps": [0, 0, 0],
+                "attitude_deg": {"roll": 0, "pitch": 0, "yaw": 0},
+                "sigma": {"position_m": [1] * 3, "velocity_mps": [1] * 3, "attitude_deg": [1] * 3},
+            },
+            "imu": {"rate_hz": 100.0},
+            "odometer": {"rate_hz": 10.0},
+        }
+    )
+    t = np.arange(0.0, 1.0, 0.01)
+    return Recording(
+        path=None,
+        meta=meta,
+        imu=ImuData(t=t, gyro=np.zeros((t.size, 3)), accel=np.zeros((t.size, 3))),
+        odometer=OdometerData(t=np.array([0.5]), speed=np.array([speed])),
+    )
+
+
+def test_h_matches_numerical_differentiation() -> None:
+    """z(δx) − z(0) = H δx to first order, for every state the measurement depends on.
+
+    SINS errors perturb the nominal state; the plugin states are parameters of the truth (the
+    true mounting offset δα with C̃_b^m = C_b^m (I + δα×), the true scale error δk_D), so they
+    perturb the true vehicle velocity and the odometer reading.
+    """
+    mounting = np.deg2rad([0.8, -0.5, 1.2])
+    c_b_m_nominal = dcm_from_euler(*mounting).T
+    c_b_n_true = dcm_from_euler(0.03, -0.02, 1.1)
+    v_m_true = np.array([0.0, 0.12, 0.0])
+    scale_true = 0.015
+
+    def measure(dx: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        # Truth: vehicle velocity along m-y; the true mounting is C̃_b^m (I + δα×)⁻¹.
+        d_alpha, d_k = dx[15:18], dx[18]
+        c_b_m_true = c_b_m_nominal @ dcm_from_quat(quat_from_rotvec(-d_alpha))
+        v_n_true = c_b_n_true @ c_b_m_true.T @ v_m_true
+        rec = _recording((1.0 + scale_true + d_k) * v_m_true[1])
+        opts = OdometerOptions(mounting_deg=tuple(np.rad2deg(mounting)))
+        plugin = Odometer("odometer", opts, rec)
+        imu = ImuNoise(1e-4, 1e-3, 1e-5, 1e-3)
+        layout = StateLayout(common_blocks(imu, [1] * 3, [1] * 3, [1] * 3)).extended(
+            plugin.state_blocks()
+        )
+        # The SINS state carries the errors δv and φ: C̃_b^n = (I − φ×) C_b^n.
+        c_est = (
+            dcm_from_quat(quat_multiply(quat_from_rotvec(-dx[3:6]), quat_from_rotvec(np.zeros(3))))
+            @ c_b_n_true
+        )
+        ctx = MeasurementContext(
+            t=0.5,
+            lat=FRAME.lat0,
+            lon=FRAME.lon0,
+            height=FRAME.height0,
+            velocity=v_n_true + dx[0:3],
+            c_b_n=c_est,
+            position_enu=np.zeros(3),
+            layout=layout,
+            x=np.zeros(layout.dim),
+            frame=FRAME,
+        )
+        m = plugin.measure(0, ctx)
+        return m.z, m.H
+
+    _, h = measure(np.zeros(19))
+    steps = [1e-4] * 3 + [1e-5] * 3 + [0.0] * 9 + [1e-5] * 3 + [1e-5]
+    for j, step in enumerate(steps):
+        if step == 0.0:
+            np.testing.assert_array_equal(h[:, j], 0.0)
+            continue
+        dx = np.zeros(19)
+        dx[j] = step
+        zp, _ = measure(dx)
+        dx[j] = -step
+        zm, _ = measure(dx)
+        numeric = (zp - zm) / (2 * step)
+        np.testing.assert_allclose(h[:, j], numeric, atol=1e-7, err_msg=f"column {j}")
+    # A mounting error about the travel direction does not enter the measurement (§3.3: δα_y
+    # is unobservable): H_δα v^b = −C_b^m (v^b × v^b) = 0.
+    v_b = c_b_m_nominal.T @ v_m_true
+    np.testing.assert_allclose(h[:, 15:18] @ v_b, 0.0, atol=1e-15)
