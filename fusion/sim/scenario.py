@@ -291,19 +291,22 @@ def parse_override(text: str) -> tuple[list[str], Any]:
 
 
 def _known_fields(path: list[str]) -> bool:
-    """Whether ``path`` names a field of the schema (used to allow setting unset sections)."""
+    """Whether ``path`` names a field of the schema (used to allow setting unset sections).
+
+    Any key below a mapping-typed field (e.g. ``uwb.anchors.A9``) is allowed.
+    """
     model: Any = Scenario
     for part in path:
+        if model is dict:
+            return True
         fields = getattr(model, "model_fields", None)
         if fields is None or part not in fields:
             return False
         ann = fields[part].annotation
-        nested = [
-            a
-            for a in getattr(ann, "__args__", (ann,))
-            if isinstance(a, type) and issubclass(a, BaseModel)
-        ]
-        model = nested[0] if nested else None
+        args = [ann, *getattr(ann, "__args__", ())]
+        nested = [a for a in args if isinstance(a, type) and issubclass(a, BaseModel)]
+        is_map = any(a is dict or getattr(a, "__origin__", None) is dict for a in args)
+        model = nested[0] if nested else (dict if is_map else None)
     return True
 
 
@@ -403,7 +406,7 @@ def load_scenario(name_or_path: str | Path, overrides: Sequence[str] = ()) -> Sc
 def list_presets() -> list[tuple[str, str]]:
     """``(name, one-line description)`` of every preset, sorted by name."""
     out = []
-    for path in sorted(SCENARIO_DIR.glob("*.yaml")):
+    for path in sorted(SCENARIO_DIR.glob("*.yaml"), key=lambda p: p.stem):
         try:
             data = yaml.safe_load(path.read_text(encoding="utf-8")) or {}
         except yaml.YAMLError:

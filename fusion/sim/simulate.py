@@ -168,8 +168,9 @@ def simulate(
     sc = _as_scenario(scenario, overrides)
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    for old in out.glob("*.csv*"):
-        old.unlink()
+    for stem in rec.STREAM_COLUMNS:  # stale stream files of an earlier run
+        for old in (out / f"{stem}.csv", out / f"{stem}.csv.gz"):
+            old.unlink(missing_ok=True)
     frame = LocalFrame(sc.origin.lat_deg, sc.origin.lon_deg, sc.origin.height_m)
     traj = Trajectory(sc, stream_rng(seed, "trajectory"))
     exact = ExactImu(traj, frame, sc.imu.rate_hz, sc.imu.quadrature_nodes)
