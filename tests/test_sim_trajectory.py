@@ -192,7 +192,8 @@ def test_mechanization_reproduces_truth_quick() -> None:
 
 
 def test_mechanization_with_vibration_1khz_quick() -> None:
-    sc = _longwall("face.length_m=30", "face.cycles=3", "duration_s=180")
+    """5 min with vibration at 1 kHz (pass, end manoeuvre)."""
+    sc = _longwall("face.length_m=15", "face.cycles=2", "duration_s=300", "imu.quadrature_nodes=3")
     horiz, height, att, _ = _mechanize_errors(sc, 1000.0)
     assert horiz < 1e-3
     assert height < 5e-3
