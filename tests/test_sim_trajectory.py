@@ -160,6 +160,29 @@ def test_face_geometry_and_mining_cycle() -> None:
     assert (m.cycle[: int(sc.static_start_s)] == 0).all()
 
 
+@pytest.mark.parametrize("name", ["longwall-200m", "seed000-carrier", "seed003-brokenline"])
+def test_continuity_and_motion_constraint(name: str) -> None:
+    """No jump where the AFC configuration changes; body velocity along y only."""
+    sc = load_scenario(name, ["motion.vibration=false"])
+    traj, frame = _build(sc)
+    seg = traj._seg
+    switch = seg["t0"][np.flatnonzero(np.diff(seg["leg"]) != 0) + 1]
+    if switch.size:
+        a, b = traj.evaluate(switch - 1e-9), traj.evaluate(switch + 1e-9)
+        np.testing.assert_allclose(a.position, b.position, atol=1e-9)
+        np.testing.assert_allclose(a.euler, b.euler, atol=1e-9)
+    imu = ExactImu(traj, frame, 5.0, 2)
+    c = imu.chunk(0, imu.n_samples)
+    speed = np.abs(c.velocity_body[:, 1])
+    # non-holonomic: lateral and vertical body velocity only from the meridian convergence
+    # between the origin's and the local level frame (≈ 1.6e-7 rad per metre)
+    assert np.abs(c.velocity_body[:, [0, 2]]).max() <= 5e-5 * speed.max()
+    # odometer distance = integral of the body-y speed (signed)
+    np.testing.assert_allclose(
+        c.odometer_distance[-1], np.trapezoid(c.velocity_body[:, 1], c.t), rtol=1e-3, atol=1e-3
+    )
+
+
 def test_track_turns_and_laps() -> None:
     sc = load_scenario("seed002-rectangle-718", ["motion.vibration.enabled=false"])
     traj, _ = _build(sc)
