@@ -194,6 +194,56 @@ def test_simulate_faults_and_unperturbed_initial(tmp_path: Path) -> None:
     assert np.abs(norm[~inside & (rec.magnetometer.t < 60)] - 53.0).max() < 1.0
 
 
+def test_recording_files_reproduce_truth_with_imu_mounting(tmp_path: Path) -> None:
+    """File-level acceptance: the written error-free imu.csv mechanizes to truth.csv.
+
+    The IMU is mounted with the odometer's residual mounting angles (0.5°, 0°, 1°): the truth
+    attitude is the IMU's, the body velocity has the corresponding small x/z parts, and an
+    error-free odometer still reads the travel speed exactly.
+    """
+    from fusion.attitude import dcm_from_euler, wrap_angle
+    from fusion.earth import LocalFrame
+    from fusion.strapdown import NavState, mechanize
+
+    out = simulate(
+        "seed000-carrier",
+        tmp_path / "c",
+        seed=4,
+        overrides=[
+            "imu.grade=ideal",
+            "initial.perturb=false",
+            "duration_s=400",
+            "motion.vibration=false",
+            "odometer.scale_factor_error=0",
+            "odometer.noise_sigma_mps=0",
+        ],
+    )
+    rec = read_recording(out)
+    tr = rec.truth
+    assert tr is not None and rec.odometer is not None
+    o = rec.meta.origin
+    frame = LocalFrame(o.lat_deg, o.lon_deg, o.height_m)
+    init = NavState.from_enu(frame, tr.position[0], tr.velocity[0], *tr.attitude[0])
+    res = mechanize(rec.imu.t, rec.imu.gyro, rec.imu.accel, init, frame=frame)
+    assert np.abs(res.position_enu - tr.position).max() < 1e-3
+    assert np.rad2deg(np.abs(wrap_angle(res.attitude - tr.attitude))).max() < 1e-6
+    # body velocity v^b = C_m^b [0, v, 0] ≈ [δα_z v, v, −δα_x v] (C_b^m = exp(δα×))
+    c = dcm_from_euler(tr.attitude[:, 0], tr.attitude[:, 1], tr.attitude[:, 2])
+    v_b = np.einsum("nji,nj->ni", c, tr.velocity)
+    k = np.argmax(np.abs(v_b[:, 1]))
+    np.testing.assert_allclose(
+        v_b[k, [0, 2]] / v_b[k, 1], [np.deg2rad(1.0), -np.deg2rad(0.5)], atol=2e-4
+    )
+    # the ideal odometer reads the travel speed along the track
+    # (interval means over (t_j − 0.1 s, t_j], from the travel along the track)
+    from scipy.integrate import cumulative_trapezoid
+
+    travel = cumulative_trapezoid(np.linalg.norm(tr.velocity, axis=1), tr.t, initial=0.0)
+    t_od = rec.odometer.t
+    mean_speed = (np.interp(t_od, tr.t, travel) - np.interp(t_od - 0.1, tr.t, travel)) / 0.1
+    np.testing.assert_allclose(np.abs(rec.odometer.speed), mean_speed, rtol=1e-3, atol=1e-5)
+
+
 def test_face_end_anchors_in_face_coordinates(tmp_path: Path) -> None:
     out = simulate("seed004-face-end", tmp_path / "u", seed=0, overrides=["duration_s=120"])
     rec = read_recording(out)

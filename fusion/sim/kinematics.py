@@ -27,6 +27,13 @@ For ``C_b^n = R_z(−ψ) R_x(θ) R_y(γ)``, ``Ċ_b^n = C_b^n (ω_nb^b ×)`` give
 
 (checked against a finite difference of the DCM in ``tests/test_sim_trajectory.py``).
 
+IMU mounting
+------------
+The trajectory describes the vehicle frame m (y along the track = the odometer's axis). An IMU
+mounted with a constant misalignment ``C_b^m`` (the odometer's residual mounting angles δα,
+``C_b^m = exp(δα×)``, seed 000 eqs. 9–10) has ``C_b^n = C_m^n C_b^m``, ``ω_ib^b = C_m^b ω_im^m``
+and ``f^b = C_m^b f^m``; the truth attitude is then the IMU's.
+
 Interval means
 --------------
 The recording's IMU sample k is the mean of ω_ib^b and f^b over ``(t_{k−1}, t_k]``. It is
@@ -54,7 +61,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from fusion import earth
-from fusion.attitude import dcm_from_euler
+from fusion.attitude import dcm_from_euler, euler_from_dcm
 from fusion.sim.trajectory import MotionState, Trajectory, TruthChunk
 
 Array = NDArray[np.float64]
@@ -96,8 +103,12 @@ class PointImu:
     motion: MotionState
 
 
-def point_imu(state: MotionState, frame: earth.LocalFrame) -> PointImu:
-    """Exact ``ω_ib^b`` and ``f^b`` at the points of ``state`` (see module docstring)."""
+def point_imu(state: MotionState, frame: earth.LocalFrame, c_b_m: Array | None = None) -> PointImu:
+    """Exact ``ω_ib^b`` and ``f^b`` at the points of ``state`` (see module docstring).
+
+    With ``c_b_m`` (IMU mounting, see :class:`ExactImu`) the angles of ``state`` are those of
+    the vehicle frame m and the outputs are rotated into the IMU frame b.
+    """
     c_n0_e = frame.c_e_n.T
     r_e = frame.r0_e + state.position @ c_n0_e.T
     v_e = state.velocity @ c_n0_e.T
@@ -116,12 +127,15 @@ def point_imu(state: MotionState, frame: earth.LocalFrame) -> PointImu:
     w_en = np.stack(
         [-v_n[:, 1] / (rm + h), v_n[:, 0] / (rn + h), v_n[:, 0] * np.tan(lat) / (rn + h)], axis=-1
     )
-    c_b_n = dcm_from_euler(state.euler[:, 0], state.euler[:, 1], state.euler[:, 2])
-    f_b = np.einsum("nji,nj->ni", c_b_n, f_n)
+    c_m_n = dcm_from_euler(state.euler[:, 0], state.euler[:, 1], state.euler[:, 2])
+    f_b = np.einsum("nji,nj->ni", c_m_n, f_n)
     w_b = body_rate_from_euler(state.euler, state.euler_rate) + np.einsum(
-        "nji,nj->ni", c_b_n, w_ie + w_en
+        "nji,nj->ni", c_m_n, w_ie + w_en
     )
-    return PointImu(w_b, f_b, v_n, c_b_n, lat, lon, h, state)
+    if c_b_m is None:
+        return PointImu(w_b, f_b, v_n, c_m_n, lat, lon, h, state)
+    # constant mounting: ω_ib^b = C_m^b ω_im^m, f^b = C_m^b f^m, C_b^n = C_m^n C_b^m
+    return PointImu(w_b @ c_b_m, f_b @ c_b_m, v_n, c_m_n @ c_b_m, lat, lon, h, state)
 
 
 class ExactImu:
@@ -137,14 +151,25 @@ class ExactImu:
         IMU rate; sample k is at ``t_k = k / rate_hz``.
     nodes
         Gauss–Legendre nodes per interval.
+    c_b_m
+        Constant rotation ``C_b^m`` from the IMU frame b to the vehicle frame m whose attitude
+        the trajectory describes (m: y along the track, the odometer's axis); None = aligned.
+        The truth attitude, ``c_b_n``, ``velocity_body`` and the IMU outputs are then those of
+        the IMU: ``C_b^n = C_m^n C_b^m``, so ``v^b = C_m^b [0, v, 0]`` has small x/z parts.
     """
 
     BLOCK_POINTS = 60_000
     """Quadrature points evaluated at once (memory bound of one evaluation)."""
 
     def __init__(
-        self, trajectory: Trajectory, frame: earth.LocalFrame, rate_hz: float, nodes: int = 6
+        self,
+        trajectory: Trajectory,
+        frame: earth.LocalFrame,
+        rate_hz: float,
+        nodes: int = 6,
+        c_b_m: Array | None = None,
     ) -> None:
+        self.c_b_m = None if c_b_m is None else np.asarray(c_b_m, dtype=float)
         self.trajectory = trajectory
         self.frame = frame
         self.rate_hz = float(rate_hz)
@@ -178,7 +203,7 @@ class ExactImu:
             b1 = min(n, b0 + block)
             nb = b1 - b0
             tq = (t[b0:b1, None] - dt) + dt * self._x[None, :]
-            q = point_imu(self.trajectory.evaluate(tq.ravel()), self.frame)
+            q = point_imu(self.trajectory.evaluate(tq.ravel()), self.frame, self.c_b_m)
             gyro[b0:b1] = (q.gyro.reshape(nb, m, 3) * w).sum(axis=1)
             accel[b0:b1] = (q.accel.reshape(nb, m, 3) * w).sum(axis=1)
             vb_q = np.einsum("nji,nj->ni", q.c_b_n, q.velocity_n)[:, 1].reshape(nb, m)
@@ -189,10 +214,13 @@ class ExactImu:
         odo = np.cumsum(np.concatenate([[self._odo], dist_inc]))[1:]
         self._odo = float(odo[-1])
         self._next = k1
-        p = point_imu(self.trajectory.evaluate(t), self.frame)
+        p = point_imu(self.trajectory.evaluate(t), self.frame, self.c_b_m)
         vel_b = np.einsum("nji,nj->ni", p.c_b_n, p.velocity_n)
-        euler = p.motion.euler.copy()
-        euler[:, 2] = np.mod(euler[:, 2], 2.0 * np.pi)
+        if self.c_b_m is None:
+            euler = p.motion.euler.copy()
+            euler[:, 2] = np.mod(euler[:, 2], 2.0 * np.pi)
+        else:
+            euler = euler_from_dcm(p.c_b_n)
         return TruthChunk(
             t=t,
             position_enu=p.motion.position,

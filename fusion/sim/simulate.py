@@ -13,6 +13,11 @@ trajectory 1, IMU 2, odometer 3, magnetometer 4, UWB 5, support 6, position 7, i
 perturbation 8), so switching one sensor off leaves every other realization unchanged, and the
 same seed gives byte-identical files.
 
+The trajectory describes the vehicle (its y axis along the track, the odometer's axis); the
+IMU is mounted on it with the odometer section's residual mounting angles δα
+(``C_b^m = exp(δα×)``), so that the truth attitude, the IMU and the motion constraint are the
+IMU's and the mounting angles are observable, as in seed 000.
+
 ``meta.yaml`` holds the *perturbed* initial state (truth + a seeded draw from the scenario's
 1-σ, unless ``initial.perturb`` is false) with that σ, so that a filter starts with a realistic
 error; the true initial state, the injected faults (``{type, t_start, t_end, …}``), the AFC push
@@ -173,7 +178,11 @@ def simulate(
             old.unlink(missing_ok=True)
     frame = LocalFrame(sc.origin.lat_deg, sc.origin.lon_deg, sc.origin.height_m)
     traj = Trajectory(sc, stream_rng(seed, "trajectory"))
-    exact = ExactImu(traj, frame, sc.imu.rate_hz, sc.imu.quadrature_nodes)
+    # the IMU is mounted on the vehicle with the odometer's residual mounting angles
+    mounting = sc.odometer.c_b_m if sc.odometer is not None else None
+    if mounting is not None and np.allclose(mounting, np.eye(3), rtol=0.0, atol=0.0):
+        mounting = None
+    exact = ExactImu(traj, frame, sc.imu.rate_hz, sc.imu.quadrature_nodes, c_b_m=mounting)
     imu_model = sc.imu.error_model
     imu_sim = ImuErrorSimulator(imu_model, sc.imu.rate_hz, stream_rng(seed, "imu"), sc.faults)
     odo_sim = (
