@@ -227,12 +227,12 @@ def test_recording_files_reproduce_truth_with_imu_mounting(tmp_path: Path) -> No
     res = mechanize(rec.imu.t, rec.imu.gyro, rec.imu.accel, init, frame=frame)
     assert np.abs(res.position_enu - tr.position).max() < 1e-3
     assert np.rad2deg(np.abs(wrap_angle(res.attitude - tr.attitude))).max() < 1e-6
-    # body velocity v^b = C_m^b [0, v, 0] ≈ [δα_z v, v, −δα_x v] (C_b^m = exp(δα×))
+    # body velocity v^b = C_m^b [0, v, 0] ≈ [−δα_z v, v, δα_x v] (C_b^m = exp(−δα×))
     c = dcm_from_euler(tr.attitude[:, 0], tr.attitude[:, 1], tr.attitude[:, 2])
     v_b = np.einsum("nji,nj->ni", c, tr.velocity)
     k = np.argmax(np.abs(v_b[:, 1]))
     np.testing.assert_allclose(
-        v_b[k, [0, 2]] / v_b[k, 1], [np.deg2rad(1.0), -np.deg2rad(0.5)], atol=2e-4
+        v_b[k, [0, 2]] / v_b[k, 1], [-np.deg2rad(1.0), np.deg2rad(0.5)], atol=2e-4
     )
     # the ideal odometer reads the travel speed along the track
     # (interval means over (t_j − 0.1 s, t_j], from the travel along the track)

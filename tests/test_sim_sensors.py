@@ -354,8 +354,9 @@ def test_odometer_scale_and_mounting_recovered_by_least_squares() -> None:
     vmean = (cj - cprev) / 0.1
     coef, *_ = np.linalg.lstsq(vmean, speed, rcond=None)
     k = coef[1] - 1.0
-    a_z = coef[0] / coef[1]
-    a_x = -coef[2] / coef[1]
+    # speed = (1 + k) [exp(−δα×) v^b]_y = (1 + k)(v_y − δα_z v_x + δα_x v_z)
+    a_z = -coef[0] / coef[1]
+    a_x = coef[2] / coef[1]
     assert k == pytest.approx(0.015, rel=0.05)
     assert math.degrees(a_z) == pytest.approx(-1.5, rel=0.05)
     assert math.degrees(a_x) == pytest.approx(1.0, rel=0.05)

@@ -31,7 +31,7 @@ IMU mounting
 ------------
 The trajectory describes the vehicle frame m (y along the track = the odometer's axis). An IMU
 mounted with a constant misalignment ``C_b^m`` (the odometer's residual mounting angles δα,
-``C_b^m = exp(δα×)``, seed 000 eqs. 9–10) has ``C_b^n = C_m^n C_b^m``, ``ω_ib^b = C_m^b ω_im^m``
+``C_b^m = exp(−δα×)``, seed 000 eqs. 9–10) has ``C_b^n = C_m^n C_b^m``, ``ω_ib^b = C_m^b ω_im^m``
 and ``f^b = C_m^b f^m``; the truth attitude is then the IMU's.
 
 Interval means

@@ -48,12 +48,13 @@ IMU (:class:`ImuErrorModel`, :class:`ImuErrorSimulator`)
     :meth:`ImuErrorSimulator.apply_rows`; the error processes run on underneath.
 
 Odometer (:class:`OdometerModel`, seed 000 eqs. 9–10, 18–20)
-    The odometer measures travel along the y axis of its frame m. With the nominal mounting
-    ``C_b^m = I`` and residual mounting angles δα, ``C̃_b^m = C_b^m (I + δα×)`` (eq. 10; the
-    exact rotation ``exp(δα×)`` is used, equal to first order). The increment over one IMU
-    interval is
+    The odometer measures travel along the y axis of its frame m. Seed 000 eq. 10 relates the
+    nominal mounting the navigator assumes, ``C̃_b^m = I``, to the true one by
+    ``C̃_b^m = C_b^m (I + δα×)``, so the true mounting is ``C_b^m = exp(−δα×)`` (exact rotation,
+    equal to first order) and a filter estimating δα recovers the configured angles with their
+    sign. The increment over one IMU interval is
 
-        ΔD_k = (1 + δk_D) · s_k · [C̃_b^m Δr^b_k]_y,
+        ΔD_k = (1 + δk_D) · s_k · [C_b^m Δr^b_k]_y,
 
     where ``Δr^b_k`` is the body-frame displacement over the interval (its y component is the
     truth odometer-distance increment, x and z are the trapezoidal integral of ``v^b``) and
@@ -644,8 +645,8 @@ class OdometerModel(BaseModel):
 
     @property
     def c_b_m(self) -> FloatArray:
-        """``C̃_b^m = exp(δα×)`` (nominal ``C_b^m = I``)."""
-        return _rotvec_matrix(np.asarray(self.mounting_angles_deg) * DEG)
+        """True mounting ``C_b^m = exp(−δα×)`` (nominal ``C̃_b^m = I``, seed 000 eq. 10)."""
+        return _rotvec_matrix(-np.asarray(self.mounting_angles_deg) * DEG)
 
     def meta(self) -> dict[str, float]:
         """meta.yaml ``odometer`` section."""

@@ -15,7 +15,7 @@ same seed gives byte-identical files.
 
 The trajectory describes the vehicle (its y axis along the track, the odometer's axis); the
 IMU is mounted on it with the odometer section's residual mounting angles δα
-(``C_b^m = exp(δα×)``), so that the truth attitude, the IMU and the motion constraint are the
+(``C_b^m = exp(−δα×)``), so that the truth attitude, the IMU and the motion constraint are the
 IMU's and the mounting angles are observable, as in seed 000.
 
 ``meta.yaml`` holds the *perturbed* initial state (truth + a seeded draw from the scenario's
