@@ -69,9 +69,12 @@ class Odometer(Plugin):
         # C_b^m from the mounting angles in the recording's attitude convention (m relative to b).
         self.c_b_m = dcm_from_euler(r, p, y).T
         self.rows = np.array([0, 1, 2]) if self.use_speed else np.array([0, 2])
-        self.variance = np.array(
-            [options.sigma_lateral_mps, options.sigma_speed_mps, options.sigma_vertical_mps]
-        )[self.rows] ** 2
+        self.variance = (
+            np.array(
+                [options.sigma_lateral_mps, options.sigma_speed_mps, options.sigma_vertical_mps]
+            )[self.rows]
+            ** 2
+        )
 
     def state_blocks(self) -> tuple[StateBlock, ...]:
         """Mounting angles δα (3) and, with an odometer, its scale factor error δk_D."""
