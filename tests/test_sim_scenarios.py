@@ -270,3 +270,13 @@ def test_plot_truth(tmp_path: Path) -> None:
     )
     png2 = plot_truth(out2, tmp_path / "face.png")
     assert png2.exists() and png2.stat().st_size > 10_000
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", sorted(PRESETS))
+def test_every_preset_writes_a_recording_that_validates(name: str, tmp_path: Path) -> None:
+    """Each preset (its first 150 s: the same generation path as a full run) passes the reader."""
+    from fusion.recording import validate_recording
+
+    out = simulate(name, tmp_path / name, seed=1, overrides=["duration_s=150"])
+    assert validate_recording(out) == []
