@@ -9,12 +9,13 @@ nearest valid key.
 
 from __future__ import annotations
 
-import difflib
 from pathlib import Path
 from typing import Any, Literal
 
 import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
+
+from fusion.validation import error_lines
 
 
 class ConfigError(ValueError):
@@ -106,40 +107,6 @@ class FusionConfig(_Strict):
         return yaml.safe_dump(self.model_dump(mode="json"), sort_keys=False)
 
 
-def _key_suggestion(model: type[BaseModel], loc: tuple[Any, ...]) -> str:
-    """' (did you mean X?)' for an unknown key, looking up the model at ``loc``."""
-    target: Any = model
-    for part in loc[:-1]:
-        fields = getattr(target, "model_fields", None)
-        if fields is None or not isinstance(part, str) or part not in fields:
-            if isinstance(part, int):
-                continue
-            return ""
-        annotation = fields[part].annotation
-        args = getattr(annotation, "__args__", ())
-        target = next((a for a in (annotation, *args) if hasattr(a, "model_fields")), None)
-        if target is None:
-            return ""
-    close = difflib.get_close_matches(str(loc[-1]), list(target.model_fields), n=1)
-    return f" (did you mean {close[0]!r}?)" if close else ""
-
-
-def format_validation_error(
-    source: str, model: type[BaseModel], error: ValidationError
-) -> list[str]:
-    """One line per problem: ``source: key a.b[0].c: rule``."""
-    lines = []
-    for err in error.errors():
-        loc = tuple(err["loc"])
-        path = ""
-        for part in loc:
-            path += f"[{part}]" if isinstance(part, int) else (f".{part}" if path else str(part))
-        hint = _key_suggestion(model, loc) if err["type"] == "extra_forbidden" else ""
-        rule = "unknown key" if err["type"] == "extra_forbidden" else err["msg"]
-        lines.append(f"{source}: key {path or '(top level)'}: {rule}{hint}")
-    return lines
-
-
 def parse_config(data: Any, source: str = "<config>") -> FusionConfig:
     """Validate a mapping as a :class:`FusionConfig`; raise :class:`ConfigError`."""
     if not isinstance(data, dict):
@@ -147,7 +114,7 @@ def parse_config(data: Any, source: str = "<config>") -> FusionConfig:
     try:
         return FusionConfig.model_validate(data)
     except ValidationError as exc:
-        raise ConfigError("\n".join(format_validation_error(source, FusionConfig, exc))) from None
+        raise ConfigError("\n".join(error_lines(source, FusionConfig, exc))) from None
 
 
 def load_config(path: str | Path) -> FusionConfig:

@@ -164,9 +164,7 @@ class Engine:
         meta = recording.meta
         self.frame = LocalFrame(meta.origin.lat_deg, meta.origin.lon_deg, meta.origin.height_m)
         self.plugins: list[Plugin] = [
-            create_plugin(
-                block.type, block.instance_name, block.options, recording, f"plugins[{i}]"
-            )
+            create_plugin(block.type, block.instance_name, block.options, recording, ("plugins", i))
             for i, block in enumerate(config.plugins)
             if block.enabled
         ]

@@ -16,6 +16,7 @@ so a third party adds one by packaging it, without touching the core.
 from __future__ import annotations
 
 from abc import ABC, abstractmethod
+from collections.abc import Sequence
 from dataclasses import dataclass
 from importlib.metadata import entry_points
 from typing import Any, ClassVar
@@ -27,6 +28,7 @@ from pydantic import BaseModel, ConfigDict, ValidationError
 from fusion.earth import LocalFrame
 from fusion.error_model import StateBlock, StateLayout
 from fusion.recording import Recording
+from fusion.validation import dotted, error_lines
 
 ENTRY_POINT_GROUP = "fusion.plugins"
 
@@ -132,22 +134,24 @@ def available_plugins() -> dict[str, type[Plugin]]:
 
 
 def create_plugin(
-    kind: str, name: str, options: dict[str, Any], recording: Recording, where: str
+    kind: str,
+    name: str,
+    options: dict[str, Any],
+    recording: Recording,
+    where: Sequence[str | int],
 ) -> Plugin:
     """Instantiate plugin ``kind`` with ``options``; errors name ``where`` (the config path)."""
     registry = available_plugins()
     if kind not in registry:
         raise PluginError(
-            f"{where}.type: no plugin {kind!r} is registered (known: {sorted(registry)})"
+            f"configuration: key {dotted((*where, 'type'))}: no plugin {kind!r} is registered"
+            f" (known: {sorted(registry)})"
         )
     cls = registry[kind]
     try:
         opts = cls.Options.model_validate(options)
     except ValidationError as exc:
-        lines = [
-            f"{where}.{'.'.join(str(p) for p in e['loc'])}: "
-            + ("unknown key" if e["type"] == "extra_forbidden" else e["msg"])
-            for e in exc.errors()
-        ]
-        raise PluginError("\n".join(lines)) from None
+        raise PluginError(
+            "\n".join(error_lines("configuration", cls.Options, exc, where))
+        ) from None
     return cls(name, opts, recording)

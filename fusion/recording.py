@@ -47,7 +47,6 @@ gaps only explicitly, returning them in :attr:`Recording.imu_gaps` and logging a
 
 from __future__ import annotations
 
-import difflib
 import gzip
 import io
 import logging
@@ -58,8 +57,7 @@ from collections import Counter
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from types import UnionType
-from typing import Annotated, Any, Literal, NamedTuple, Union, get_args, get_origin
+from typing import Annotated, Any, Literal, NamedTuple
 
 import numpy as np
 import numpy.typing as npt
@@ -75,6 +73,8 @@ from pydantic import (
     ValidationError,
     field_validator,
 )
+
+from fusion.validation import describe_error, dotted, short_repr, suggest
 
 __all__ = [
     "FORMAT",
@@ -641,16 +641,6 @@ _YamlLoader.add_implicit_resolver(
 _Path = tuple[str | int, ...]
 
 
-def _dotted(path: Iterable[Any]) -> str:
-    out = ""
-    for part in path:
-        if isinstance(part, int):
-            out += f"[{part}]"
-        else:
-            out += ("." if out else "") + str(part)
-    return out
-
-
 def _walk_yaml(
     node: yaml.Node, path: _Path, lines: dict[_Path, int], problems: list[Problem]
 ) -> None:
@@ -665,7 +655,7 @@ def _walk_yaml(
                 problems.append(
                     Problem(
                         "meta.yaml",
-                        f"key {_dotted(child)} (line {line})",
+                        f"key {dotted(child)} (line {line})",
                         f"duplicate key {key!r} (first given on line {seen[key]})",
                     )
                 )
@@ -680,105 +670,15 @@ def _walk_yaml(
             _walk_yaml(item, child, lines, problems)
 
 
-def _unwrap(tp: Any) -> Any:
-    while True:
-        origin = get_origin(tp)
-        if origin is Annotated:
-            tp = get_args(tp)[0]
-        elif origin in (Union, UnionType):
-            args = [a for a in get_args(tp) if a is not type(None)]
-            if len(args) != 1:
-                return tp
-            tp = args[0]
-        else:
-            return tp
-
-
-def _model_at(path: Sequence[Any]) -> type[BaseModel] | None:
-    """The meta model class found at ``path`` inside RecordingMeta (None if not a model)."""
-    tp: Any = RecordingMeta
-    for part in path:
-        tp = _unwrap(tp)
-        if isinstance(tp, type) and issubclass(tp, BaseModel):
-            info = tp.model_fields.get(str(part))
-            if info is None:
-                return None
-            tp = info.annotation
-        elif get_origin(tp) is dict:
-            tp = get_args(tp)[1]
-        else:
-            return None
-    tp = _unwrap(tp)
-    return tp if isinstance(tp, type) and issubclass(tp, BaseModel) else None
-
-
-def _suggest(word: str, options: Sequence[str]) -> str | None:
-    """The option closest to ``word`` (case-insensitive), or None when none is near."""
-    lower = {o.lower(): o for o in options}
-    hit = difflib.get_close_matches(word.lower(), list(lower), n=1, cutoff=0.6)
-    return lower[hit[0]] if hit else None
-
-
-def _short(value: Any) -> str:
-    text = repr(value)
-    return text if len(text) <= 60 else text[:57] + "..."
-
-
-def _pydantic_rule(err: Any) -> str:
-    """A sentence for one pydantic error dict."""
-    kind = err["type"]
-    loc = err["loc"]
-    value = err.get("input")
-    ctx = err.get("ctx") or {}
-    if kind == "missing":
-        return "required key is missing"
-    if kind == "extra_forbidden":
-        key = str(loc[-1])
-        model = _model_at(loc[:-1])
-        valid = sorted(model.model_fields) if model is not None else []
-        hint = _suggest(key, valid)
-        rule = f"unknown key {key!r}"
-        if hint:
-            rule += f" (did you mean {hint!r}?)"
-        if valid:
-            rule += f"; valid keys here: {', '.join(valid)}"
-        if not loc[:-1]:
-            rule += "; free-form entries belong under 'extra:'"
-        return rule
-    if kind == "literal_error":
-        return f"must be {ctx.get('expected', FORMAT)} (found {_short(value)})"
-    if kind in ("float_type", "float_parsing"):
-        return f"must be a number (found {_short(value)})"
-    if kind == "finite_number":
-        return f"must be a finite number (found {_short(value)})"
-    if kind == "greater_than":
-        return f"must be > {ctx['gt']:g} (found {_short(value)})"
-    if kind == "greater_than_equal":
-        return f"must be >= {ctx['ge']:g} (found {_short(value)})"
-    if kind == "less_than_equal":
-        return f"must be <= {ctx['le']:g} (found {_short(value)})"
-    if kind in ("tuple_type", "list_type"):
-        return f"must be a list (found {_short(value)})"
-    if kind == "too_long":
-        return f"must have {ctx.get('max_length')} items (found {ctx.get('actual_length')})"
-    if kind in ("model_type", "dict_type", "model_attributes_type"):
-        return f"must be a mapping of keys to values (found {_short(value)})"
-    if kind == "string_type":
-        return f"must be a string (found {_short(value)})"
-    if kind == "value_error":
-        return str(err["msg"]).removeprefix("Value error, ")
-    return str(err["msg"])
-
-
 def _meta_problems_from_validation(exc: ValidationError, lines: dict[_Path, int]) -> list[Problem]:
     out: list[Problem] = []
     for err in exc.errors():
         loc = tuple(p for p in err["loc"] if p != "[key]")
-        where = f"key {_dotted(loc)}" if loc else ""
+        where = f"key {dotted(loc)}" if loc else ""
         line = lines.get(loc)
         if line is not None:
             where += f" (line {line})"
-        out.append(Problem("meta.yaml", where, _pydantic_rule(err)))
+        out.append(Problem("meta.yaml", where, describe_error(RecordingMeta, err)))
     return out
 
 
@@ -802,7 +702,9 @@ def _parse_meta_text(text: str) -> tuple[Any, dict[_Path, int], list[Problem]]:
         loader.dispose()
     if not isinstance(data, dict):
         problems.append(
-            Problem("meta.yaml", "", f"must be a mapping of keys to values (found {_short(data)})")
+            Problem(
+                "meta.yaml", "", f"must be a mapping of keys to values (found {short_repr(data)})"
+            )
         )
         return None, lines, problems
     return data, lines, problems
@@ -1078,7 +980,8 @@ def _diagnose_block(
                 rep.add(
                     "nonnumeric",
                     where,
-                    f"non-numeric value {_short(cell)} (a number with '.' decimal point expected)",
+                    f"non-numeric value {short_repr(cell)}"
+                    " (a number with '.' decimal point expected)",
                     "non-numeric cell",
                 )
         if ok:
@@ -1386,7 +1289,7 @@ def _check_table(stem: str, table: _Table, rep: _Reporter, anchor_ids: list[str]
 
             def make(i: int) -> tuple[str, str]:
                 bad = str(ids[unknown[i]])
-                hint = _suggest(bad, anchor_ids)
+                hint = suggest(bad, anchor_ids)
                 rule = f"unknown anchor id {bad!r} (meta.yaml uwb.anchors has {known})"
                 if hint:
                     rule += f"; did you mean {hint!r}?"

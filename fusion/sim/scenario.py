@@ -53,6 +53,7 @@ from fusion.sim.sensors import (
     SupportModel,
     UwbModel,
 )
+from fusion.validation import error_lines
 
 SCENARIO_DIR = Path(__file__).with_name("scenarios")
 
@@ -267,14 +268,6 @@ class Scenario(_Strict):
         return self
 
 
-def _format_errors(err: ValidationError, source: str) -> str:
-    lines = [f"invalid scenario {source}:"]
-    for e in err.errors():
-        path = ".".join(str(p) for p in e["loc"]) or "<root>"
-        lines.append(f"  {path}: {e['msg']}")
-    return "\n".join(lines)
-
-
 def parse_override(text: str) -> tuple[list[str], Any]:
     """Split ``key.sub=value`` into the key path and the YAML-parsed scalar value."""
     if "=" not in text:
@@ -349,7 +342,7 @@ def scenario_from_mapping(data: Any, source: str = "<mapping>") -> Scenario:
     try:
         return Scenario.model_validate(data)
     except ValidationError as err:
-        raise ScenarioError(_format_errors(err, source)) from None
+        raise ScenarioError("\n".join(error_lines(f"scenario {source}", Scenario, err))) from None
 
 
 def preset_path(name: str) -> Path:
