@@ -54,7 +54,7 @@ import scipy.linalg
 from numpy.typing import ArrayLike, NDArray
 from scipy.spatial.transform import Rotation
 
-from fusion import earth
+from fusion import earth, kernels
 from fusion.attitude import dcm_from_quat
 from fusion.strapdown import HGT, LAT, LON, Q0, VEL
 
@@ -233,16 +233,6 @@ def common_blocks(
     )
 
 
-_radii = numba.njit(cache=True)(earth.radii)
-_gravity_dlat = numba.njit(cache=True)(earth.normal_gravity_latitude_gradient)
-_gravity_dh = numba.njit(cache=True)(earth.normal_gravity_height_gradient)
-
-
-@numba.njit(cache=True)
-def _skew(v: NDArray[np.float64]) -> NDArray[np.float64]:
-    return np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
-
-
 @numba.njit(cache=True)
 def _fill_sins_dynamics(
     f: NDArray[np.float64],
@@ -254,22 +244,19 @@ def _fill_sins_dynamics(
     """Write the 15×15 SINS block of F (velocity, attitude, position, biases) into ``f``."""
     v = nav[VEL : VEL + 3]
     lat, h = nav[LAT], nav[HGT]
-    rm, rn = _radii(lat)
-    rmh, rnh = rm + h, rn + h
+    rmh, rnh, w_ie, w_en = kernels.frame_rates(lat, h, v)
     sl, cl = math.sin(lat), math.cos(lat)
     tl = sl / cl
     wie = earth.OMEGA_IE
-    w_ie = np.array([0.0, wie * cl, wie * sl])
-    w_en = np.array([-v[1] / rmh, v[0] / rnh, v[0] * tl / rnh])
     for i in range(3):
         for j in range(3):
             f[3 + i, 9 + j] = -c_b_n[i, j]
             f[0 + i, 12 + j] = c_b_n[i, j]
             f[6 + i, 0 + j] = 1.0 if i == j else 0.0
-    f[0:3, 3:6] = _skew(f_n)
+    f[0:3, 3:6] = kernels.skew(f_n)
     if not full:
-        f[3:6, 3:6] = -_skew(w_ie)
-        f[0:3, 0:3] = -2.0 * _skew(w_ie)
+        f[3:6, 3:6] = -kernels.skew(w_ie)
+        f[0:3, 0:3] = -2.0 * kernels.skew(w_ie)
         return
     # Partials of ω_in^n: M_av (velocity), M_1 (latitude, earth rate), M_2 (latitude, height).
     m_av = np.zeros((3, 3))
@@ -290,14 +277,14 @@ def _fill_sins_dynamics(
     to_metres[1, 0] = 1.0 / (rnh * cl)
     to_metres[0, 1] = 1.0 / rmh
     to_metres[2, 2] = 1.0
-    v_skew = _skew(v)
-    f[3:6, 3:6] = -_skew(w_ie + w_en)
+    v_skew = kernels.skew(v)
+    f[3:6, 3:6] = -kernels.skew(w_ie + w_en)
     f[3:6, 0:3] = m_av
     f[3:6, 6:9] = (m_1 + m_2) @ to_metres
-    f[0:3, 0:3] = v_skew @ m_av - _skew(2.0 * w_ie + w_en)
+    f[0:3, 0:3] = v_skew @ m_av - kernels.skew(2.0 * w_ie + w_en)
     m_vp = v_skew @ (2.0 * m_1 + m_2)
-    m_vp[2, 0] -= _gravity_dlat(lat, h)
-    m_vp[2, 2] -= _gravity_dh(lat, h)
+    m_vp[2, 0] -= kernels.gravity_dlat(lat, h)
+    m_vp[2, 2] -= kernels.gravity_dh(lat, h)
     f[0:3, 6:9] = m_vp @ to_metres
     f[6, 6] = v[2] / rnh - v[1] * tl / rmh
     f[6, 7] = v[0] * tl / rmh

@@ -48,26 +48,13 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy.spatial.transform import Rotation
 
-from fusion import attitude, earth
+from fusion import attitude, earth, kernels
 
 # Layout of the packed navigation array used by the compiled kernels.
 Q0, VEL, LAT, LON, HGT = 0, 4, 7, 8, 9
 NAV_SIZE = 10
 # History of the previous (sub-)interval: Δθ (3), Δv (3), length, and the last Δv^n (3).
 HIST_SIZE = 10
-
-_radii = numba.njit(cache=True)(earth.radii)
-_gravity = numba.njit(cache=True)(earth.normal_gravity)
-_quat_multiply = numba.njit(cache=True)(attitude.quat_multiply)
-_quat_from_rotvec = numba.njit(cache=True)(attitude.quat_from_rotvec)
-_dcm_from_quat = numba.njit(cache=True)(attitude.dcm_from_quat)
-
-
-@numba.njit(cache=True)
-def _cross(a: NDArray[np.float64], b: NDArray[np.float64]) -> NDArray[np.float64]:
-    return np.array(
-        [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]]
-    )
 
 
 @numba.njit(cache=True)
@@ -85,32 +72,34 @@ def _step(
     dt_prev = hist[6]
     if coning_sculling and dt_prev > 0.0:
         kappa = dt * dt / (6.0 * dt_prev * (dt_prev + dt))
-        phi_b = dtheta + kappa * _cross(dtheta_prev, dtheta)
-        dv_scul = kappa * (_cross(dtheta_prev, dv) + _cross(dv_prev, dtheta))
+        phi_b = dtheta + kappa * kernels.cross(dtheta_prev, dtheta)
+        dv_scul = kappa * (kernels.cross(dtheta_prev, dv) + kernels.cross(dv_prev, dtheta))
     else:
         phi_b = dtheta.copy()
         dv_scul = np.zeros(3)
-    dv_sf_b = dv + 0.5 * _cross(dtheta, dv) + _cross(dtheta, _cross(dtheta, dv)) / 6.0 + dv_scul
+    dv_sf_b = (
+        dv
+        + 0.5 * kernels.cross(dtheta, dv)
+        + kernels.cross(dtheta, kernels.cross(dtheta, dv)) / 6.0
+        + dv_scul
+    )
 
     # Mid-interval navigation quantities, extrapolated from the previous Δv^n.
     v_prev = nav[VEL : VEL + 3].copy()
     v_mid = v_prev + 0.5 * hist[7:10]
     lat_prev, lon_prev, h_prev = nav[LAT], nav[LON], nav[HGT]
-    rm, rn = _radii(lat_prev)
+    rm, _ = kernels.radii(lat_prev)
     h_mid = h_prev + 0.5 * v_mid[2] * dt
     lat_mid = lat_prev + 0.5 * v_mid[1] * dt / (rm + h_prev)
-    rm, rn = _radii(lat_mid)
-    rmh, rnh = rm + h_mid, rn + h_mid
-    sl, cl = math.sin(lat_mid), math.cos(lat_mid)
-    w_ie = np.array([0.0, earth.OMEGA_IE * cl, earth.OMEGA_IE * sl])
-    w_en = np.array([-v_mid[1] / rmh, v_mid[0] / rnh, v_mid[0] * sl / cl / rnh])
+    rmh, rnh, w_ie, w_en = kernels.frame_rates(lat_mid, h_mid, v_mid)
+    cl = math.cos(lat_mid)
     zeta = (w_ie + w_en) * dt
 
-    c_b_n = _dcm_from_quat(nav[Q0 : Q0 + 4])
+    c_b_n = kernels.dcm_from_quat(nav[Q0 : Q0 + 4])
     dv_sf_n = c_b_n @ dv_sf_b
-    dv_sf_n = dv_sf_n - 0.5 * _cross(zeta, dv_sf_n)
-    g_n = np.array([0.0, 0.0, -_gravity(lat_mid, h_mid)])
-    dv_n = dv_sf_n + (g_n - _cross(2.0 * w_ie + w_en, v_mid)) * dt
+    dv_sf_n = dv_sf_n - 0.5 * kernels.cross(zeta, dv_sf_n)
+    g_n = np.array([0.0, 0.0, -kernels.normal_gravity(lat_mid, h_mid)])
+    dv_n = dv_sf_n + (g_n - kernels.cross(2.0 * w_ie + w_en, v_mid)) * dt
     v_new = v_prev + dv_n
 
     v_avg = 0.5 * (v_prev + v_new)
@@ -119,8 +108,9 @@ def _step(
     nav[LON] = lon_prev + v_avg[0] * dt / (rnh * cl)
     nav[VEL : VEL + 3] = v_new
 
-    q = _quat_multiply(
-        _quat_from_rotvec(-zeta), _quat_multiply(nav[Q0 : Q0 + 4], _quat_from_rotvec(phi_b))
+    q = kernels.quat_multiply(
+        kernels.quat_from_rotvec(-zeta),
+        kernels.quat_multiply(nav[Q0 : Q0 + 4], kernels.quat_from_rotvec(phi_b)),
     )
     nav[Q0 : Q0 + 4] = q / math.sqrt(q[0] ** 2 + q[1] ** 2 + q[2] ** 2 + q[3] ** 2)
 
