@@ -275,7 +275,6 @@ class Engine:
             height=float(nav[HGT]),
             velocity=nav[VEL : VEL + 3].copy(),
             c_b_n=sins.c_b_n,
-            position_enu=self.frame.to_enu(nav[LAT], nav[LON], nav[HGT]),
             layout=self.layout,
             x=kf.x.copy(),
             frame=self.frame,

@@ -323,28 +323,26 @@ class ErrorModel:
         self.full = form == "full"
         self.discretization = discretization
         n = layout.dim
-        # Parts of F and Q that do not depend on the navigation state.
+        # The part of F that does not depend on the navigation state, and all of Q.
         self._f_static = np.zeros((n, n))
-        self._q_static = np.zeros(n)
+        q_diag = np.zeros(n)
         for block in layout.blocks[3:]:
             s = layout.slice(block.name)
             if block.correlation_time_s is not None:
                 self._f_static[s, s] = -np.eye(block.size) / block.correlation_time_s
             if block.noise_density:
-                self._q_static[s] = block.noise_density
-        self._f = np.zeros((n, n))
+                q_diag[s] = block.noise_density
+        q_diag[0:3] = imu.accel_vrw**2
+        q_diag[3:6] = imu.gyro_arw**2
+        self._q = np.diag(q_diag)
 
     def continuous(
         self, nav: NDArray[np.float64], f_n: NDArray[np.float64], c_b_n: NDArray[np.float64]
     ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         """``F`` and the state-space noise density ``Q`` (n×n) at a nominal state."""
-        f = self._f
-        f[:] = self._f_static
+        f = self._f_static.copy()
         _fill_sins_dynamics(f, nav, f_n, c_b_n, self.full)
-        q = np.diag(self._q_static)
-        q[0:3, 0:3] = self.imu.accel_vrw**2 * np.eye(3)
-        q[3:6, 3:6] = self.imu.gyro_arw**2 * np.eye(3)
-        return f.copy(), q
+        return f, self._q.copy()
 
     def discrete(
         self,

@@ -73,6 +73,7 @@ class KalmanFilter:
     def __init__(self, x: NDArray[np.float64], p: NDArray[np.float64]) -> None:
         self.x = np.array(x, dtype=float)
         self.P = np.array(p, dtype=float)
+        self._identity = np.eye(self.dim)
 
     @property
     def dim(self) -> int:
@@ -109,7 +110,7 @@ class KalmanFilter:
                 return UpdateResult(False, nu, whitened, nis, threshold)
         gain = scipy.linalg.cho_solve(chol, ph_t.T, check_finite=False).T
         self.x = self.x + gain @ nu
-        i_kh = np.eye(self.dim) - gain @ h
+        i_kh = self._identity - gain @ h
         p = i_kh @ self.P @ i_kh.T + gain @ r @ gain.T
         self.P = 0.5 * (p + p.T)
         return UpdateResult(True, nu, whitened, nis, threshold)

@@ -18,6 +18,7 @@ from __future__ import annotations
 from abc import ABC, abstractmethod
 from collections.abc import Sequence
 from dataclasses import dataclass
+from functools import cached_property
 from importlib.metadata import entry_points
 from typing import Any, ClassVar
 
@@ -63,7 +64,7 @@ class MeasurementContext:
     c_b_n
         Nominal attitude matrix.
     position_enu
-        Nominal position in ENU metres about the recording origin.
+        Nominal position in ENU metres about the recording origin (computed on first use).
     layout
         States of the filter being served.
     x
@@ -79,10 +80,14 @@ class MeasurementContext:
     height: float
     velocity: NDArray[np.float64]
     c_b_n: NDArray[np.float64]
-    position_enu: NDArray[np.float64]
     layout: StateLayout
     x: NDArray[np.float64]
     frame: LocalFrame
+
+    @cached_property
+    def position_enu(self) -> NDArray[np.float64]:
+        """Nominal position in ENU metres about the recording origin."""
+        return self.frame.to_enu(self.lat, self.lon, self.height)
 
 
 class Plugin(ABC):

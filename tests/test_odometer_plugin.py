@@ -75,7 +75,6 @@ def test_h_matches_numerical_differentiation() -> None:
             height=FRAME.height0,
             velocity=v_n_true + dx[0:3],
             c_b_n=c_est,
-            position_enu=np.zeros(3),
             layout=layout,
             x=np.zeros(layout.dim),
             frame=FRAME,
