@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
+from scipy.spatial.transform import Rotation
 
 
 def skew(v: ArrayLike) -> NDArray[np.float64]:
@@ -135,3 +136,8 @@ def quat_from_dcm(c: ArrayLike) -> NDArray[np.float64]:
 def wrap_angle(a: ArrayLike) -> NDArray[np.float64]:
     """Wrap angles to [-π, π)."""
     return (np.asarray(a, dtype=float) + np.pi) % (2.0 * np.pi) - np.pi
+
+
+def euler_from_quat(q: ArrayLike) -> NDArray[np.float64]:
+    """Roll, pitch, yaw (N, 3) of scalar-first unit quaternions ``q_b^n`` (N, 4)."""
+    return euler_from_dcm(Rotation.from_quat(np.asarray(q), scalar_first=True).as_matrix())

@@ -17,7 +17,6 @@ from dataclasses import dataclass, field
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.spatial.transform import Rotation
 
 from fusion import attitude
 from fusion.config import ConfigError, FusionConfig, ImuTuning
@@ -310,12 +309,11 @@ class Engine:
     def _solution(
         self, t: NDArray[np.float64], nav: NDArray[np.float64], cov: NDArray[np.float64]
     ) -> Solution:
-        c_b_n = Rotation.from_quat(nav[:, Q0 : Q0 + 4], scalar_first=True).as_matrix()
         return Solution(
             t=t,
             position=self.frame.to_enu(nav[:, LAT], nav[:, LON], nav[:, HGT]),
             velocity=nav[:, VEL : VEL + 3].copy(),
-            attitude=attitude.euler_from_dcm(c_b_n),
+            attitude=attitude.euler_from_quat(nav[:, Q0 : Q0 + 4]),
             sigma_position=np.sqrt(np.diagonal(cov, axis1=1, axis2=2)),
             position_covariance=cov,
         )

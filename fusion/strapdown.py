@@ -46,7 +46,6 @@ from dataclasses import dataclass
 import numba
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
-from scipy.spatial.transform import Rotation
 
 from fusion import attitude, earth, kernels
 
@@ -387,7 +386,6 @@ def mechanize(
         frame = earth.LocalFrame(np.rad2deg(initial.lat), np.rad2deg(initial.lon), initial.height)
     lat, lon, height = out[:, LAT], out[:, LON], out[:, HGT]
     quats = out[:, Q0 : Q0 + 4]
-    c = Rotation.from_quat(quats, scalar_first=True).as_matrix()
     return MechanizationResult(
         t=sins.imu_t.copy(),
         lat=lat,
@@ -396,5 +394,5 @@ def mechanize(
         position_enu=frame.to_enu(lat, lon, height),
         velocity=out[:, VEL : VEL + 3],
         quaternion=quats,
-        attitude=attitude.euler_from_dcm(c),
+        attitude=attitude.euler_from_quat(quats),
     )
