@@ -11,8 +11,7 @@ def run(config: object, recording: object) -> object:
     """
     from pathlib import Path
 
-    from fusion.cli import _find_config
-    from fusion.config import FusionConfig, load_config, parse_config
+    from fusion.config import FusionConfig, find_config, load_config, parse_config
     from fusion.engine import Engine
     from fusion.recording import Recording, read_recording
 
@@ -21,6 +20,6 @@ def run(config: object, recording: object) -> object:
     elif isinstance(config, dict):
         cfg = parse_config(config)
     else:
-        cfg = load_config(_find_config(str(config)))
+        cfg = load_config(find_config(str(config)))
     rec = recording if isinstance(recording, Recording) else read_recording(Path(str(recording)))
     return Engine(cfg, rec).run()

@@ -46,25 +46,13 @@ class _Progress:
             sys.stderr.write("\n")
 
 
-def _find_config(name_or_path: str) -> Path:
-    """A config path as given, or ``configs/NAME.yaml`` in the working tree or the repository."""
-    path = Path(name_or_path)
-    if path.exists():
-        return path
-    for root in (Path.cwd(), Path(__file__).resolve().parents[1]):
-        candidate = root / "configs" / f"{name_or_path}.yaml"
-        if candidate.exists():
-            return candidate
-    return path
-
-
 def _cmd_run(args: argparse.Namespace) -> int:
-    from fusion.config import load_config
+    from fusion.config import find_config, load_config
     from fusion.engine import Engine
     from fusion.outputs import summary, write_outputs
     from fusion.recording import read_recording
 
-    config = load_config(_find_config(args.config))
+    config = load_config(find_config(args.config))
     recording = read_recording(args.recording, bridge_imu_gaps=config.bridge_imu_gaps)
     engine = Engine(config, recording)
     if args.check:
@@ -96,9 +84,9 @@ def _cmd_validate(args: argparse.Namespace) -> int:
 
 
 def _cmd_validate_config(args: argparse.Namespace) -> int:
-    from fusion.config import load_config
+    from fusion.config import find_config, load_config
 
-    config = load_config(_find_config(args.config))
+    config = load_config(find_config(args.config))
     print(f"{args.config}: valid ({config.name}, {len(config.plugins)} plugin(s))")
     return 0
 

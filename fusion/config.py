@@ -117,6 +117,18 @@ def parse_config(data: Any, source: str = "<config>") -> FusionConfig:
         raise ConfigError("\n".join(error_lines(source, FusionConfig, exc))) from None
 
 
+def find_config(name_or_path: str | Path) -> Path:
+    """A config path as given, or ``configs/NAME.yaml`` in the working tree or the repository."""
+    path = Path(name_or_path)
+    if path.exists():
+        return path
+    for root in (Path.cwd(), Path(__file__).resolve().parents[1]):
+        candidate = root / "configs" / f"{name_or_path}.yaml"
+        if candidate.exists():
+            return candidate
+    return path
+
+
 def load_config(path: str | Path) -> FusionConfig:
     """Read and validate a YAML configuration file."""
     path = Path(path)

@@ -1404,10 +1404,13 @@ def validate_recording(path: str | Path, *, bridge_imu_gaps: bool = False) -> li
 _CHUNK_ROWS = 65536
 
 
-def _csv_bytes_chunks(
+def csv_text_chunks(
     header: Sequence[str], columns: Sequence[npt.NDArray[Any]], kinds: str
 ) -> Iterable[bytes]:
-    """Yield the CSV text in chunks: floats as ``repr`` (exact), ints as ``%d``, text as is."""
+    """Yield a CSV file's bytes in chunks: floats as ``repr`` (exact), ints as ``%d``, text as is.
+
+    Public so that writers working in chunks (the simulator) produce exactly this format.
+    """
     yield (",".join(header) + "\n").encode()
     n = len(columns[0]) if columns else 0
     fmt = ",".join({"f": "%r", "i": "%d", "s": "%s"}[k] for k in kinds) + "\n"
@@ -1426,7 +1429,7 @@ def _write_csv(
     compress: bool,
 ) -> None:
     """Write a CSV file (``path`` without ``.gz``); with ``compress`` write ``path.gz``."""
-    chunks = _csv_bytes_chunks(header, columns, kinds)
+    chunks = csv_text_chunks(header, columns, kinds)
     if compress:
         with (
             open(path.with_name(path.name + ".gz"), "wb") as raw,
@@ -1440,7 +1443,8 @@ def _write_csv(
                 fh.write(chunk)
 
 
-def _meta_yaml(meta: RecordingMeta) -> str:
+def meta_yaml_text(meta: RecordingMeta) -> str:
+    """The meta.yaml text of ``meta`` (``extra`` last, absent sections left out)."""
     data = meta.model_dump(mode="json", exclude_none=True, exclude={"extra"})
     if meta.extra:
         data["extra"] = meta.extra
@@ -1555,7 +1559,7 @@ def write_recording(recording: Recording, path: str | Path, *, compress: bool = 
     if problems:
         raise RecordingError(problems, root)
     root.mkdir(parents=True, exist_ok=True)
-    (root / "meta.yaml").write_text(_meta_yaml(recording.meta), encoding="utf-8")
+    (root / "meta.yaml").write_text(meta_yaml_text(recording.meta), encoding="utf-8")
     for stem, item in streams.items():
         plain, packed = root / f"{stem}.csv", root / f"{stem}.csv.gz"
         stale = [plain, packed] if item is None else [plain if compress else packed]

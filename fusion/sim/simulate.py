@@ -101,7 +101,7 @@ class _CsvAppender:
     def append(self, columns: Sequence[NDArray[Any]]) -> None:
         if len(columns[0]) == 0:
             return
-        chunks = rec._csv_bytes_chunks(self.header, columns, self.kinds)
+        chunks = rec.csv_text_chunks(self.header, columns, self.kinds)
         next(iter(chunks))  # the header, written once in __init__
         for part in chunks:
             self._fh.write(part)
@@ -281,7 +281,7 @@ def simulate(
             f.close()
     assert first is not None
     meta = _meta(sc, seed, traj, first, imu_sim, uwb_model)
-    (out / "meta.yaml").write_text(rec._meta_yaml(meta), encoding="utf-8")
+    (out / "meta.yaml").write_text(rec.meta_yaml_text(meta), encoding="utf-8")
     return out
 
 
