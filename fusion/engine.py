@@ -46,6 +46,7 @@ class InnovationLog:
     nis: list[float] = field(default_factory=list)
     dof: list[int] = field(default_factory=list)
     accepted: list[bool] = field(default_factory=list)
+    suspect: list[bool] = field(default_factory=list)
     whitened: list[NDArray[np.float64]] = field(default_factory=list)
 
     def whitened_rms(self) -> float:
@@ -267,6 +268,8 @@ class Engine:
 
     def _context(self, sins: Strapdown, kf: KalmanFilter, t: float) -> MeasurementContext:
         nav = sins.nav
+        covariance = kf.P.view()
+        covariance.flags.writeable = False
         return MeasurementContext(
             t=t,
             lat=float(nav[LAT]),
@@ -276,6 +279,7 @@ class Engine:
             c_b_n=sins.c_b_n,
             layout=self.layout,
             x=kf.x.copy(),
+            covariance=covariance,
             frame=self.frame,
         )
 
@@ -298,6 +302,7 @@ class Engine:
         log.nis.append(res.nis)
         log.dof.append(res.dof)
         log.accepted.append(res.accepted)
+        log.suspect.append(m.suspect)
         log.whitened.append(res.whitened)
         return res.accepted
 

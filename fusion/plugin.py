@@ -47,6 +47,10 @@ class Measurement:
     z: NDArray[np.float64]
     H: NDArray[np.float64]
     R: NDArray[np.float64]
+    suspect: bool = False
+    """The plugin's own fault indicator flags this epoch (e.g. a magnetic field whose norm or
+    dip is off the expected earth field). The centralized filter logs it; the federated master
+    counts it toward isolating the plugin's local filter."""
 
 
 @dataclass(frozen=True)
@@ -70,6 +74,8 @@ class MeasurementContext:
     x
         Its current error estimate (plugin states may be non-zero; SINS states are zero after
         closed-loop feedback).
+    covariance
+        Its current covariance (a read-only view of the filter's own matrix: do not modify).
     frame
         The recording's ENU frame.
     """
@@ -82,6 +88,7 @@ class MeasurementContext:
     c_b_n: NDArray[np.float64]
     layout: StateLayout
     x: NDArray[np.float64]
+    covariance: NDArray[np.float64]
     frame: LocalFrame
 
     @cached_property

@@ -77,6 +77,7 @@ def test_h_matches_numerical_differentiation() -> None:
             c_b_n=c_est,
             layout=layout,
             x=np.zeros(layout.dim),
+            covariance=layout.initial_covariance(),
             frame=FRAME,
         )
         m = plugin.measure(0, ctx)
