@@ -134,12 +134,17 @@ def _cmd_demo(args: argparse.Namespace) -> int:
 
 
 def _cmd_plugins(args: argparse.Namespace) -> int:
-    from fusion.plugin import available_plugins
+    from fusion.plugin import PluginError, load_plugin_class, plugin_names
 
-    for name, cls in sorted(available_plugins().items()):
-        doc = (cls.__doc__ or "").strip().splitlines()
-        print(f"{name:20s} {doc[0] if doc else ''}")
-    return 0
+    status = 0
+    for name in plugin_names():
+        try:
+            doc = (load_plugin_class(name).__doc__ or "").strip().splitlines()
+            print(f"{name:20s} {doc[0] if doc else ''}")
+        except PluginError as exc:
+            print(f"{name:20s} BROKEN: {exc}")
+            status = 1
+    return status
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -137,12 +137,31 @@ class PluginError(ValueError):
     """A plugin cannot be found or its options are invalid."""
 
 
+def plugin_names() -> list[str]:
+    """Names registered in the ``fusion.plugins`` entry-point group (nothing is imported)."""
+    return sorted({ep.name for ep in entry_points(group=ENTRY_POINT_GROUP)})
+
+
+def load_plugin_class(kind: str) -> type[Plugin]:
+    """Import the class registered as ``kind`` (only that one: a broken third-party plugin
+    does not stop the others from loading)."""
+    matches = [ep for ep in entry_points(group=ENTRY_POINT_GROUP) if ep.name == kind]
+    if not matches:
+        raise PluginError(f"no plugin {kind!r} is registered (known: {plugin_names()})")
+    try:
+        cls = matches[0].load()
+    except Exception as exc:  # any import failure of third-party code
+        raise PluginError(
+            f"plugin {kind!r} ({matches[0].value}) cannot be imported: {exc}"
+        ) from exc
+    if not (isinstance(cls, type) and issubclass(cls, Plugin)):
+        raise PluginError(f"plugin {kind!r} ({matches[0].value}) is not a fusion.plugin.Plugin")
+    return cls
+
+
 def available_plugins() -> dict[str, type[Plugin]]:
-    """Registered plugin classes by entry-point name."""
-    found: dict[str, type[Plugin]] = {}
-    for ep in entry_points(group=ENTRY_POINT_GROUP):
-        found[ep.name] = ep.load()
-    return found
+    """Registered plugin classes by entry-point name (imports every one)."""
+    return {name: load_plugin_class(name) for name in plugin_names()}
 
 
 def create_plugin(
@@ -153,13 +172,12 @@ def create_plugin(
     where: Sequence[str | int],
 ) -> Plugin:
     """Instantiate plugin ``kind`` with ``options``; errors name ``where`` (the config path)."""
-    registry = available_plugins()
-    if kind not in registry:
+    if kind not in plugin_names():
         raise PluginError(
             f"configuration: key {dotted((*where, 'type'))}: no plugin {kind!r} is registered"
-            f" (known: {sorted(registry)})"
+            f" (known: {plugin_names()})"
         )
-    cls = registry[kind]
+    cls = load_plugin_class(kind)
     try:
         opts = cls.Options.model_validate(options)
     except ValidationError as exc:
