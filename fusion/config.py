@@ -41,10 +41,37 @@ class ImuTuning(_Strict):
     )
 
 
+class FaultDetectionOptions(_Strict):
+    """Fault detection and isolation of the federated master's local filters."""
+
+    enabled: bool = True
+    window_s: float = Field(5.0, gt=0, description="sliding window of the χ² test")
+    probability: float = Field(
+        0.9999, gt=0, lt=1, description="χ² quantile (≈ 1 false isolation per hour at 10 Hz)"
+    )
+    hold_s: float = Field(10.0, ge=0, description="consistent this long before re-admission")
+    use_indicators: bool = Field(True, description="a suspect measurement isolates its local")
+
+
+class FederatedOptions(_Strict):
+    """The federated master (seed 003 §4): sharing, reset mode, fusion period, fault isolation."""
+
+    mode: Literal["fusion_reset", "no_reset"] = "fusion_reset"
+    sharing: Literal["equal", "trace", "inverse_trace"] = Field(
+        "trace", description="β_i: equal, ∝ tr(P_i) (seed 003 eq. 33), or ∝ 1/tr(P_i)"
+    )
+    master_share: float = Field(0.0, ge=0, lt=1, description="β_m (the master's own share)")
+    fusion_period_s: float | None = Field(
+        None, gt=0, description="None: fuse after every update round (the CKF's feedback)"
+    )
+    fault_detection: FaultDetectionOptions = FaultDetectionOptions()
+
+
 class FilterOptions(_Strict):
     """Options of the error-state filter."""
 
-    architecture: Literal["centralized"] = "centralized"
+    architecture: Literal["centralized", "federated"] = "centralized"
+    federated: FederatedOptions = FederatedOptions()
     covariance_step_s: float = Field(0.1, gt=0, description="covariance propagation step")
     discretization: Literal["series", "van_loan"] = "series"
     error_model: Literal["full", "low_speed"] = "full"
@@ -64,6 +91,9 @@ class PluginBlock(BaseModel):
     gate_probability: float | None = Field(
         None, gt=0, lt=1, description="reject updates whose NIS exceeds this χ² quantile"
     )
+    local: str | None = Field(
+        None, description="federated: the local filter this plugin joins (default: its name)"
+    )
 
     @property
     def options(self) -> dict[str, Any]:
@@ -74,6 +104,11 @@ class PluginBlock(BaseModel):
     def instance_name(self) -> str:
         """``name`` or, by default, ``type``."""
         return self.name or self.type
+
+    @property
+    def local_name(self) -> str:
+        """The federated local filter of this plugin: ``local`` or its instance name."""
+        return self.local or self.instance_name
 
 
 class OutputOptions(_Strict):

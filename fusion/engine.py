@@ -7,6 +7,10 @@ over the interval since the previous event with F evaluated at the current nomin
 mean specific force of the interval, the due plugins are asked for ``(z, H, R)``, and after the
 updates the common error estimate is fed back into the SINS and reset (closed loop). The
 navigation state therefore runs at the IMU rate and the covariance at the configured step.
+
+The error-state estimates live in a filter bank (:mod:`fusion.filter_bank`): one centralized
+Kalman filter, or the federated master of :mod:`fusion.federated` whose local filters are index
+sets of the same layout. Φ and Q_d are always computed once over the full layout.
 """
 
 from __future__ import annotations
@@ -22,12 +26,14 @@ from fusion import attitude
 from fusion.config import ConfigError, FusionConfig, ImuTuning
 from fusion.earth import LocalFrame
 from fusion.error_model import (
-    POSITION,
     ErrorModel,
     ImuNoise,
     StateLayout,
     common_blocks,
 )
+from fusion.fault_detection import FaultEvent
+from fusion.federated import FederatedFilter
+from fusion.filter_bank import CentralizedFilter, FilterBank
 from fusion.kalman import KalmanFilter
 from fusion.plugin import MeasurementContext, Plugin, create_plugin
 from fusion.recording import ImuSpec, Recording
@@ -67,6 +73,8 @@ class RunResult:
     """Final estimates of every state: SINS biases and plugin states (fed-back ones included)."""
     final_covariance: NDArray[np.float64]
     innovations: dict[str, InnovationLog]
+    faults: list[FaultEvent]
+    """Isolations and re-admissions of the federated master's local filters (time order)."""
     wall_time_s: float
     config: FusionConfig
     recording_name: str
@@ -188,6 +196,19 @@ class Engine:
             discretization=config.filter.discretization,
         )
 
+    def filter_bank(self) -> FilterBank:
+        """The configured architecture over this engine's layout."""
+        opts = self.config.filter
+        if opts.architecture == "centralized":
+            return CentralizedFilter(self.layout)
+        enabled = [b for b in self.config.plugins if b.enabled]
+        return FederatedFilter(
+            self.layout,
+            [[b.name for b in p.state_blocks()] for p in self.plugins],
+            [b.local_name for b in enabled],
+            opts.federated,
+        )
+
     def initial_state(self) -> NavState:
         """Navigation state at the first IMU sample, from meta.yaml."""
         init = self.recording.meta.initial
@@ -204,7 +225,7 @@ class Engine:
         sins = Strapdown(
             imu.t, imu.gyro, imu.accel, self.initial_state(), coning_sculling=cfg.coning_sculling
         )
-        kf = KalmanFilter(np.zeros(self.layout.dim), self.layout.initial_covariance())
+        bank = self.filter_bank()
         t0, t_end = float(imu.t[0]), float(imu.t[-1])
         rate = self.config.output.rate_hz
         output_times = np.arange(t0 + 1.0 / rate, t_end + 1e-9, 1.0 / rate) if rate else np.empty(0)
@@ -212,10 +233,9 @@ class Engine:
             t0, t_end, cfg.covariance_step_s, [p.epochs() for p in self.plugins], output_times
         )
         logs = {p.name: InnovationLog() for p in self.plugins}
-        pos = self.layout.slice(POSITION)
         out_t = [t0]
         out_nav = [sins.nav.copy()]
-        out_cov = [kf.P[pos, pos].copy()]
+        out_cov = [bank.position_covariance()]
         t_cov = t0
         n_events = len(times)
         report_every = max(n_events // 100, 1)
@@ -230,7 +250,7 @@ class Engine:
             if dt > 1e-9:
                 f_n = sins.take_velocity_increment() / dt
                 phi, qd = self.model.discrete(sins.nav, f_n, sins.c_b_n, dt)
-                kf.predict(phi, qd)
+                bank.predict(phi, qd)
                 t_cov = te
             updated = False
             is_output = False
@@ -239,34 +259,36 @@ class Engine:
                 if src < 0:
                     is_output |= src == OUTPUT or (src == GRID and rate is None)
                     continue
-                updated |= self._update(
-                    self.plugins[src], int(indices[k]), te, sins, kf, logs, self.gates[src]
-                )
-            if updated:
-                self._feedback(sins, kf)
+                updated |= self._update(src, int(indices[k]), te, sins, bank, logs)
+            if bank.fusion_due(te, updated):
+                dx = bank.feedback(te)
+                sins.correct(dx[0:3], dx[3:6], dx[6:9], dx[9:12], dx[12:15])
             if is_output:
                 out_t.append(te)
                 out_nav.append(sins.nav.copy())
-                out_cov.append(kf.P[pos, pos].copy())
+                out_cov.append(bank.position_covariance())
             if progress is not None and (i // report_every) != (j // report_every):
                 progress(j / n_events)
             i = j
         solution = self._solution(np.array(out_t), np.array(out_nav), np.array(out_cov))
-        final = kf.x.copy()
+        final, final_covariance = bank.estimate()
         final[self.layout.slice("gyro_bias")] += sins.gyro_bias
         final[self.layout.slice("accel_bias")] += sins.accel_bias
         return RunResult(
             solution=solution,
             layout=self.layout,
             final_state=final,
-            final_covariance=kf.P.copy(),
+            final_covariance=final_covariance,
             innovations=logs,
+            faults=list(bank.faults),
             wall_time_s=time.perf_counter() - wall0,
             config=self.config,
             recording_name=self.recording.meta.name,
         )
 
-    def _context(self, sins: Strapdown, kf: KalmanFilter, t: float) -> MeasurementContext:
+    def _context(
+        self, sins: Strapdown, layout: StateLayout, kf: KalmanFilter, t: float
+    ) -> MeasurementContext:
         nav = sins.nav
         covariance = kf.P.view()
         covariance.flags.writeable = False
@@ -277,7 +299,7 @@ class Engine:
             height=float(nav[HGT]),
             velocity=nav[VEL : VEL + 3].copy(),
             c_b_n=sins.c_b_n,
-            layout=self.layout,
+            layout=layout,
             x=kf.x.copy(),
             covariance=covariance,
             frame=self.frame,
@@ -285,18 +307,20 @@ class Engine:
 
     def _update(
         self,
-        plugin: Plugin,
+        src: int,
         index: int,
         t: float,
         sins: Strapdown,
-        kf: KalmanFilter,
+        bank: FilterBank,
         logs: dict[str, InnovationLog],
-        gate: float | None,
     ) -> bool:
-        m = plugin.measure(index, self._context(sins, kf, t))
+        plugin = self.plugins[src]
+        layout, kf = bank.filter_of(src)
+        m = plugin.measure(index, self._context(sins, layout, kf, t))
         if m is None:
             return False
-        res = kf.update(m.z, m.H, m.R, gate)
+        res = kf.update(m.z, m.H, m.R, self.gates[src])
+        bank.record(src, t, res, m.suspect)
         log = logs[plugin.name]
         log.t.append(t)
         log.nis.append(res.nis)
@@ -305,11 +329,6 @@ class Engine:
         log.suspect.append(m.suspect)
         log.whitened.append(res.whitened)
         return res.accepted
-
-    def _feedback(self, sins: Strapdown, kf: KalmanFilter) -> None:
-        x = kf.x
-        sins.correct(x[0:3], x[3:6], x[6:9], x[9:12], x[12:15])
-        x[0:15] = 0.0
 
     def _solution(
         self, t: NDArray[np.float64], nav: NDArray[np.float64], cov: NDArray[np.float64]

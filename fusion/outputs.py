@@ -7,6 +7,7 @@ from pathlib import Path
 import numpy as np
 
 from fusion.engine import RunResult
+from fusion.fault_detection import ISOLATE, READMIT, FaultEvent
 from fusion.metrics import compute_metrics, write_metrics_json
 from fusion.recording import Recording
 from fusion.solution import write_solution
@@ -20,6 +21,9 @@ def write_outputs(
     out.mkdir(parents=True, exist_ok=True)
     files = {"solution": out / "solution.csv"}
     write_solution(result.solution, files["solution"])
+    if result.config.filter.architecture == "federated":
+        files["faults"] = out / "faults.csv"
+        write_faults(result.faults, files["faults"])
     truth = recording.truth
     if truth is not None:
         files["metrics"] = out / "metrics.json"
@@ -34,6 +38,16 @@ def write_outputs(
         if truth is not None:
             files["errors"] = figures.plot_errors(result.solution, truth, out / "errors.png", title)
     return files
+
+
+def write_faults(events: list[FaultEvent], path: Path) -> None:
+    """``faults.csv``: one row per isolation or re-admission of a local filter."""
+    rows = ["time_s,local,statistic,threshold,action,reason"]
+    rows += [
+        f"{e.t:.3f},{e.local},{e.statistic:.6g},{e.threshold:.6g},{e.action},{e.reason}"
+        for e in events
+    ]
+    path.write_text("\n".join(rows) + "\n", encoding="utf-8")
 
 
 def summary(result: RunResult, recording: Recording) -> str:
@@ -51,6 +65,12 @@ def summary(result: RunResult, recording: Recording) -> str:
         lines.append(
             f"plugin     {name}: {n} updates, {rejected} rejected, "
             f"whitened-innovation RMS {log.whitened_rms():.2f}"
+        )
+    if result.config.filter.architecture == "federated":
+        actions = [e.action for e in result.faults]
+        lines.append(
+            f"faults     {actions.count(ISOLATE)} isolations, {actions.count(READMIT)} "
+            "re-admissions (faults.csv)"
         )
     for block in result.layout.blocks[3:]:
         est, sd = result.state_estimate(block.name)

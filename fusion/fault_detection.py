@@ -1,0 +1,82 @@
+"""Fault detection and isolation of a local filter (seed 003 §4 motivates the AFKF's tolerance).
+
+Each local filter of the federated master has a monitor. Every measurement update of the local
+adds its normalized innovation squared NIS_k (χ² with m_k degrees of freedom when the local is
+consistent) and the plugin's own indicator (``Measurement.suspect``, e.g. a magnetic field off
+the expected earth field). At time t the window statistic over the last ``window_s`` seconds is
+
+    T(t) = Σ NIS_k,   d(t) = Σ m_k,   fault ⇔ T(t) > χ²_{d(t)}(p)  or  (indicators on and the
+                                                                    latest update is suspect)
+
+A healthy local that fails the test is *isolated* (excluded from fusion and from resets; it keeps
+filtering on its own). An isolated local is *re-admitted* once it has passed the test without
+interruption for ``hold_s`` seconds. Every transition is a :class:`FaultEvent` (written to
+``faults.csv``).
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from dataclasses import dataclass
+
+from fusion.config import FaultDetectionOptions
+from fusion.kalman import chi2_threshold
+
+ISOLATE, READMIT = "isolate", "readmit"
+
+
+@dataclass(frozen=True)
+class FaultEvent:
+    """One detection or recovery: ``faults.csv`` row."""
+
+    t: float
+    local: str
+    statistic: float
+    threshold: float
+    action: str
+    reason: str
+
+
+class FaultMonitor:
+    """Sliding-window χ² test plus plugin indicators for one local filter.
+
+    Parameters
+    ----------
+    local
+        Name of the local filter (for the events).
+    options
+        Window, probability, hold time, use of indicators.
+    """
+
+    def __init__(self, local: str, options: FaultDetectionOptions) -> None:
+        self.local = local
+        self.options = options
+        self.isolated = False
+        self._window: deque[tuple[float, float, int]] = deque()
+        self._clean_since: float | None = None
+
+    def observe(self, t: float, nis: float, dof: int, suspect: bool) -> FaultEvent | None:
+        """Add one update's NIS; return the event if the local changes state."""
+        opts = self.options
+        self._window.append((t, nis, dof))
+        while self._window[0][0] <= t - opts.window_s:
+            self._window.popleft()
+        statistic = sum(w[1] for w in self._window)
+        threshold = chi2_threshold(sum(w[2] for w in self._window), opts.probability)
+        flagged = opts.use_indicators and suspect
+        faulty = statistic > threshold or flagged
+        if not opts.enabled:
+            return None
+        if faulty:
+            self._clean_since = None
+            if not self.isolated:
+                self.isolated = True
+                reason = "plugin indicator" if flagged else "window chi-square"
+                return FaultEvent(t, self.local, statistic, threshold, ISOLATE, reason)
+            return None
+        if self._clean_since is None:
+            self._clean_since = t
+        if self.isolated and t - self._clean_since >= opts.hold_s:
+            self.isolated = False
+            return FaultEvent(t, self.local, statistic, threshold, READMIT, "consistent for hold")
+        return None

@@ -1,0 +1,277 @@
+"""The adaptive federated master (AFKF, seed 003 §4, eqs. 27–35; Carlson's federated filter).
+
+Local filters are index sets cut from the one centralized layout (PSINS style): local i holds
+the 15 common SINS error states c and the states p_i of its plugins, so it shares every model
+with the centralized filter. With information-sharing factors β_i and the master's own share β_m,
+Σ β_i + β_m = 1:
+
+* time update of local i with Φ_i = Φ[i, i] and Q_i = Q[i, i] except Q_i,cc = Q_cc / β_i;
+* measurement updates of each local with its own plugins (eqs. 29–31, Joseph form);
+* fusion of the common states over the healthy locals (and the master when β_m > 0), eq. 35:
+
+      P_g = (Σ P_i,cc⁻¹)⁻¹,    x_g = P_g Σ P_i,cc⁻¹ x_i,c
+
+  computed in a diagonally scaled space (scale s = √diag of one local's P_cc) so that states of
+  very different units do not make the inversions lose precision;
+* closed-loop feedback: x_g corrects the SINS, after which every estimate of the common states
+  is re-referenced to the corrected SINS (x_i,c ← x_i,c − x_g);
+* reset (mode ``fusion_reset``, eq. 34): x_i,c ← x_g and P_i,cc ← P_g / β_i. The local's own
+  states follow as a Gaussian conditional, keeping K = P_pc P_cc⁻¹ and P_p|c = P_pp − K P_cp:
+  x_p ← x_p + K (x_g − x_i,c), P_pc ← K P_i,cc, P_pp ← P_p|c + K P_i,cc Kᵀ (an exact identity
+  when nothing changes, so one local with β = 1 reproduces the centralized filter). Mode
+  ``no_reset`` only re-references (each local keeps its own information).
+
+Sharing factors (``sharing``): ``equal``; ``trace`` — β_i ∝ tr(P_i,cc), seed 003 eq. 33: the local
+whose estimate is *less* precise receives the larger share, i.e. the tighter reset P_g/β_i, so its
+next measurements move it less and it leans on the global solution, while a precise local gets a
+looser reset and its own measurements dominate it; ``inverse_trace`` — β_i ∝ 1/tr(P_i,cc): the
+precise local gets the larger share and the imprecise one a loose reset (it learns from its own
+sensor again). The trace mixes units (m², (m/s)², rad²) and is dominated by position and
+velocity, as in the seed. Shares are recomputed at each fusion from the healthy locals' P_cc.
+
+Fault isolation (:mod:`fusion.fault_detection`): an isolated local is excluded from the fusion and
+from resets and keeps filtering on its own (only re-referenced); on re-admission it is
+re-initialized from the global estimate like a reset, with the mean share of the healthy locals.
+If every local is isolated the fusion uses them all (there is nothing better to feed back).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.linalg
+from numpy.typing import NDArray
+
+from fusion.config import FederatedOptions
+from fusion.error_model import POSITION, StateLayout
+from fusion.fault_detection import READMIT, FaultEvent, FaultMonitor
+from fusion.filter_bank import COMMON
+from fusion.kalman import KalmanFilter, UpdateResult
+
+N_COMMON = 15
+
+
+@dataclass
+class LocalFilter:
+    """One local filter: an index set of the centralized layout and its own Kalman filter."""
+
+    name: str
+    index: NDArray[np.intp]
+    layout: StateLayout
+    kf: KalmanFilter
+    beta: float
+    monitor: FaultMonitor
+    reinitialize: bool = False
+
+    def reset(self, x_global: NDArray[np.float64], p_global: NDArray[np.float64]) -> None:
+        """Reset the common states to the global estimate, carrying the own states along.
+
+        ``x_global`` is relative to the SINS *before* feedback; afterwards the local's common
+        error estimate is zero.
+        """
+        x, p = self.kf.x, self.kf.P
+        p_cc_new = p_global / self.beta
+        if x.size > N_COMMON:
+            own = slice(N_COMMON, None)
+            gain = scipy.linalg.solve(p[COMMON, COMMON], p[COMMON, own], assume_a="pos").T
+            conditional = p[own, own] - gain @ p[COMMON, own]
+            x[own] += gain @ (x_global - x[COMMON])
+            p[own, COMMON] = gain @ p_cc_new
+            p[COMMON, own] = p[own, COMMON].T
+            p[own, own] = conditional + gain @ p_cc_new @ gain.T
+        p[COMMON, COMMON] = p_cc_new
+        x[COMMON] = 0.0
+
+
+def _fuse(
+    locals_: Sequence[LocalFilter], master: KalmanFilter | None
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Information fusion of the common states (eq. 35) in a diagonally scaled space."""
+    members = [(f.kf.x[COMMON], f.kf.P[COMMON, COMMON]) for f in locals_]
+    if master is not None:
+        members.append((master.x, master.P))
+    scale = np.sqrt(np.diag(members[0][1]))
+    info = np.zeros((N_COMMON, N_COMMON))
+    vector = np.zeros(N_COMMON)
+    identity = np.eye(N_COMMON)
+    for x, p in members:
+        chol = scipy.linalg.cho_factor(p / np.outer(scale, scale), check_finite=False)
+        info_i = scipy.linalg.cho_solve(chol, identity, check_finite=False)
+        info += info_i
+        vector += info_i @ (x / scale)
+    chol = scipy.linalg.cho_factor(info, check_finite=False)
+    p_hat = scipy.linalg.cho_solve(chol, identity, check_finite=False)
+    x_g = scale * (p_hat @ vector)
+    p_g = p_hat * np.outer(scale, scale)
+    return x_g, 0.5 * (p_g + p_g.T)
+
+
+class FederatedFilter:
+    """Local filters per plugin group, fused by a master with adaptive sharing and isolation.
+
+    Parameters
+    ----------
+    layout
+        The centralized layout (common states, then every plugin's blocks in plugin order).
+    plugin_blocks
+        Names of each plugin's state blocks, in plugin order.
+    plugin_locals
+        The local-filter name of each plugin (plugins with equal names share a local).
+    options
+        Mode, sharing rule, master share, fusion period and fault detection.
+    """
+
+    def __init__(
+        self,
+        layout: StateLayout,
+        plugin_blocks: Sequence[Sequence[str]],
+        plugin_locals: Sequence[str],
+        options: FederatedOptions,
+    ) -> None:
+        if not plugin_locals:
+            raise ValueError("a federated filter needs at least one aiding plugin")
+        self.layout = layout
+        self.options = options
+        self.faults: list[FaultEvent] = []
+        names = list(dict.fromkeys(plugin_locals))
+        share = (1.0 - options.master_share) / len(names)
+        p0 = layout.initial_covariance()
+        by_name = {b.name: b for b in layout.blocks}
+        self.locals: list[LocalFilter] = []
+        for name in names:
+            members = [i for i, n in enumerate(plugin_locals) if n == name]
+            blocks = [b for i in members for b in plugin_blocks[i]]
+            index = np.concatenate(
+                [np.arange(N_COMMON)]
+                + [np.arange(layout.dim)[layout.slice(b)] for b in blocks]
+            )
+            local_layout = StateLayout(layout.blocks[:5] + tuple(by_name[b] for b in blocks))
+            p = p0[np.ix_(index, index)]
+            p[COMMON, COMMON] /= share
+            self.locals.append(
+                LocalFilter(
+                    name,
+                    index,
+                    local_layout,
+                    KalmanFilter(np.zeros(index.size), p),
+                    share,
+                    FaultMonitor(name, options.fault_detection),
+                )
+            )
+        self._local_of_plugin = [names.index(n) for n in plugin_locals]
+        self.master = (
+            KalmanFilter(np.zeros(N_COMMON), p0[COMMON, COMMON] / options.master_share)
+            if options.master_share > 0
+            else None
+        )
+        self._last_fusion = -np.inf
+        self._position = layout.slice(POSITION)
+
+    def predict(self, phi: NDArray[np.float64], qd: NDArray[np.float64]) -> None:
+        """Time update of every local (common process noise scaled by 1/β_i) and the master."""
+        for f in self.locals:
+            q = qd[np.ix_(f.index, f.index)]
+            q[COMMON, COMMON] /= f.beta
+            f.kf.predict(phi[np.ix_(f.index, f.index)], q)
+        if self.master is not None:
+            self.master.predict(phi[COMMON, COMMON], qd[COMMON, COMMON] / self.options.master_share)
+
+    def filter_of(self, plugin: int) -> tuple[StateLayout, KalmanFilter]:
+        """The local filter of plugin ``plugin``."""
+        f = self.locals[self._local_of_plugin[plugin]]
+        return f.layout, f.kf
+
+    def record(self, plugin: int, t: float, result: UpdateResult, suspect: bool) -> None:
+        """Feed the local's fault monitor; note isolation and re-admission events."""
+        f = self.locals[self._local_of_plugin[plugin]]
+        event = f.monitor.observe(t, result.nis, result.dof, suspect)
+        if event is not None:
+            self.faults.append(event)
+            f.reinitialize = event.action == READMIT
+
+    def fusion_due(self, t: float, updated: bool) -> bool:
+        """After every update round, or every ``fusion_period_s``."""
+        period = self.options.fusion_period_s
+        if period is None:
+            return updated
+        return t - self._last_fusion >= period - 1e-9
+
+    def _members(self) -> list[LocalFilter]:
+        healthy = [f for f in self.locals if not f.monitor.isolated and not f.reinitialize]
+        return healthy or [f for f in self.locals if not f.reinitialize] or self.locals
+
+    def feedback(self, t: float) -> NDArray[np.float64]:
+        """Fuse, update the shares, reset or re-reference every local; return x_g."""
+        self._last_fusion = t
+        members = self._members()
+        x_g, p_g = _fuse(members, self.master)
+        self._update_shares(members)
+        for f in self.locals:
+            if f in members and self.options.mode == "fusion_reset":
+                f.reset(x_g, p_g)
+            elif f.reinitialize:
+                f.beta = float(np.mean([m.beta for m in members]))
+                f.reset(x_g, p_g)
+                f.reinitialize = False
+            else:
+                f.kf.x[COMMON] -= x_g
+        if self.master is not None:
+            if self.options.mode == "fusion_reset":
+                self.master.x[:] = 0.0
+                self.master.P = p_g / self.options.master_share
+            else:
+                self.master.x -= x_g
+        return x_g
+
+    def _update_shares(self, members: Sequence[LocalFilter]) -> None:
+        rule = self.options.sharing
+        traces = np.array([np.trace(f.kf.P[COMMON, COMMON]) for f in members])
+        if rule == "trace":
+            weights = traces
+        elif rule == "inverse_trace":
+            weights = 1.0 / traces
+        else:
+            weights = np.ones(len(members))
+        shares = (1.0 - self.options.master_share) * weights / weights.sum()
+        for f, beta in zip(members, shares, strict=True):
+            f.beta = float(beta)
+
+    def position_covariance(self) -> NDArray[np.float64]:
+        """Position block of the fused covariance (no side effects)."""
+        _, p_g = _fuse(self._members(), self.master)
+        return p_g[6:9, 6:9].copy()
+
+    def estimate(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """The global estimate over the full layout.
+
+        Common states: the fusion. Each local's own states: its estimate, correlated with the
+        common states through its regression K_i (P_pc = K_i P_g, P_pq = K_i P_g K_jᵀ across
+        locals) with its own conditional covariance.
+        """
+        members = self._members()
+        x_g, p_g = _fuse(members, self.master)
+        x = np.zeros(self.layout.dim)
+        p = np.zeros((self.layout.dim, self.layout.dim))
+        x[COMMON], p[COMMON, COMMON] = x_g, p_g
+        gains: list[tuple[NDArray[np.intp], NDArray[np.float64]]] = []
+        for f in self.locals:
+            own = f.index[N_COMMON:]
+            if own.size == 0:
+                continue
+            pl, xl = f.kf.P, f.kf.x
+            gain = scipy.linalg.solve(
+                pl[COMMON, COMMON], pl[COMMON, N_COMMON:], assume_a="pos"
+            ).T
+            x[own] = xl[N_COMMON:] + gain @ (x_g - xl[COMMON])
+            p[np.ix_(own, own)] = pl[N_COMMON:, N_COMMON:] - gain @ pl[COMMON, N_COMMON:]
+            p[own, :N_COMMON] = gain @ p_g
+            p[:N_COMMON, own] = p[own, :N_COMMON].T
+            for other, other_gain in gains:
+                p[np.ix_(own, other)] = gain @ p_g @ other_gain.T
+                p[np.ix_(other, own)] = p[np.ix_(own, other)].T
+            p[np.ix_(own, own)] += gain @ p_g @ gain.T
+            gains.append((own, gain))
+        return x, p
+

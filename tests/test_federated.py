@@ -1,0 +1,132 @@
+"""Federated master: exactness against the centralized filter, sharing rules, fault isolation."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from fusion.config import FaultDetectionOptions, FederatedOptions, load_config, parse_config
+from fusion.engine import Engine
+from fusion.error_model import ImuNoise, StateLayout, common_blocks
+from fusion.fault_detection import ISOLATE, READMIT, FaultMonitor
+from fusion.federated import FederatedFilter
+from fusion.filter_bank import CentralizedFilter
+from fusion.recording import read_recording
+from fusion.sim.simulate import simulate
+
+CONFIGS = Path(__file__).resolve().parents[1] / "configs"
+
+
+def _layout() -> StateLayout:
+    imu = ImuNoise(1e-4, 1e-3, 1e-5, 1e-3)
+    return StateLayout(common_blocks(imu, [0.1] * 3, [0.01] * 3, [1.0] * 3))
+
+
+def _random_system(rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    phi = np.eye(15) + 0.05 * rng.standard_normal((15, 15))
+    a = 0.01 * rng.standard_normal((15, 15))
+    return phi, a @ a.T + 1e-6 * np.eye(15)
+
+
+@pytest.mark.parametrize("master_share", [0.0, 0.3])
+@pytest.mark.parametrize("sharing", ["equal", "trace", "inverse_trace"])
+def test_fusion_reset_equals_centralized_on_common_states(
+    sharing: str, master_share: float
+) -> None:
+    """Carlson's result: with fusion and reset after every update round and locals that hold only
+    common states, the federated filter is the centralized one for any sharing factors."""
+    rng = np.random.default_rng(4)
+    layout = _layout()
+    options = FederatedOptions(sharing=sharing, master_share=master_share)  # type: ignore[arg-type]
+    fed = FederatedFilter(layout, [[], [], []], ["a", "b", "c"], options)
+    ckf = CentralizedFilter(layout)
+    for step in range(60):
+        phi, qd = _random_system(rng)
+        fed.predict(phi, qd)
+        ckf.predict(phi, qd)
+        plugin = step % 3
+        h = rng.standard_normal((2, 15))
+        r = np.diag(rng.uniform(0.01, 1.0, 2))
+        z = rng.standard_normal(2)
+        for bank in (fed, ckf):
+            _, kf = bank.filter_of(plugin)
+            kf.update(z, h, r)
+        np.testing.assert_allclose(fed.feedback(step), ckf.feedback(step), rtol=1e-8, atol=1e-12)
+        np.testing.assert_allclose(
+            fed.estimate()[1], ckf.estimate()[1], rtol=1e-8, atol=1e-14, err_msg=f"step {step}"
+        )
+
+
+def test_single_local_equals_centralized_end_to_end(tmp_path: Path) -> None:
+    """One local holding every plugin, β = 1: the federated engine run is the CKF run."""
+    simulate(
+        "seed000-carrier",
+        tmp_path / "rec",
+        seed=3,
+        overrides=["face.cycles=1", "imu.grade=seed002-mems"],
+    )
+    rec = read_recording(tmp_path / "rec")
+    config = load_config(CONFIGS / "sins_od_ckf.yaml")
+    data = config.model_dump()
+    data["filter"]["architecture"] = "federated"
+    ckf = Engine(config, rec).run()
+    fed = Engine(parse_config(data), rec).run()
+    np.testing.assert_allclose(fed.solution.position, ckf.solution.position, atol=1e-7)
+    np.testing.assert_allclose(fed.solution.sigma_position, ckf.solution.sigma_position, rtol=1e-9)
+    np.testing.assert_allclose(fed.final_state, ckf.final_state, atol=1e-12)
+    scale = np.abs(ckf.final_covariance).max()
+    np.testing.assert_allclose(fed.final_covariance, ckf.final_covariance, atol=1e-11 * scale)
+
+
+def test_reset_carries_own_states_as_a_conditional() -> None:
+    """Resetting the common states moves a local's own states along their regression on them,
+    and leaves the covariance positive definite."""
+    rng = np.random.default_rng(8)
+    layout = _layout()
+    fed = FederatedFilter(layout.extended([]), [[]], ["a"], FederatedOptions(sharing="equal"))
+    f = fed.locals[0]
+    a = rng.standard_normal((15, 15))
+    f.kf.P = a @ a.T + np.eye(15)
+    f.kf.x = rng.standard_normal(15)
+    x_g = rng.standard_normal(15)
+    f.reset(x_g, 0.5 * f.kf.P[:15, :15])
+    np.testing.assert_array_equal(f.kf.x, 0.0)
+    np.linalg.cholesky(f.kf.P)
+
+
+def _monitor(**kw: float) -> FaultMonitor:
+    return FaultMonitor("mag", FaultDetectionOptions(window_s=5.0, hold_s=10.0, **kw))
+
+
+def test_monitor_quiet_on_consistent_innovations() -> None:
+    """χ²(1) innovations at 10 Hz for an hour: about one false isolation per hour."""
+    rng = np.random.default_rng(1)
+    mon = _monitor()
+    t = np.arange(0.0, 3600.0, 0.1)
+    events = [mon.observe(ti, float(rng.chisquare(1)), 1, False) for ti in t]
+    isolations = sum(e is not None and e.action == ISOLATE for e in events)
+    assert isolations <= 3
+
+
+def test_monitor_isolates_a_burst_and_readmits_after_hold() -> None:
+    rng = np.random.default_rng(2)
+    mon = _monitor()
+    events = []
+    for ti in np.arange(0.0, 120.0, 0.1):
+        nis = float(rng.chisquare(1)) * (25.0 if 40.0 <= ti < 60.0 else 1.0)
+        e = mon.observe(ti, nis, 1, False)
+        if e is not None:
+            events.append(e)
+    assert [e.action for e in events] == [ISOLATE, READMIT]
+    assert 40.0 <= events[0].t < 42.0
+    # The burst leaves the window 5 s after it ends; then 10 s of hold.
+    assert 60.0 + 10.0 <= events[1].t < 60.0 + 5.0 + 10.0 + 1.0
+
+
+def test_monitor_isolates_on_plugin_indicator() -> None:
+    mon = _monitor()
+    assert mon.observe(0.0, 0.5, 1, False) is None
+    event = mon.observe(0.1, 0.5, 1, True)
+    assert event is not None and event.action == ISOLATE and event.reason == "plugin indicator"
