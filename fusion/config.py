@@ -67,11 +67,26 @@ class FederatedOptions(_Strict):
     fault_detection: FaultDetectionOptions = FaultDetectionOptions()
 
 
-class FilterOptions(_Strict):
-    """Options of the error-state filter."""
+class DeadReckoningOptions(_Strict):
+    """Seed 000's traditional method: odometer speed along the free SINS attitude, open loop."""
 
-    architecture: Literal["centralized", "federated"] = "centralized"
+    mounting_deg: tuple[float, float, float] = Field(
+        (0.0, 0.0, 0.0), description="odometer-frame mounting (roll, pitch, yaw) relative to b"
+    )
+    scale_error: float = Field(0.0, gt=-1, description="odometer scale error δk_D removed")
+    gyro_bias_deg_h: tuple[float, float, float] = Field(
+        (0.0, 0.0, 0.0), description="gyro bias removed before the mechanization"
+    )
+    scale_sigma: float = Field(0.03, ge=0, description="σ of δk_D for the error envelope")
+    speed_sigma_mps: float = Field(0.01, ge=0, description="odometer speed noise, envelope")
+
+
+class FilterOptions(_Strict):
+    """Options of the error-state filter (or of the filter-free dead reckoning)."""
+
+    architecture: Literal["centralized", "federated", "dead_reckoning"] = "centralized"
     federated: FederatedOptions = FederatedOptions()
+    dead_reckoning: DeadReckoningOptions = DeadReckoningOptions()
     covariance_step_s: float = Field(0.1, gt=0, description="covariance propagation step")
     discretization: Literal["series", "van_loan"] = "series"
     error_model: Literal["full", "low_speed"] = "full"
@@ -135,6 +150,13 @@ class FusionConfig(_Strict):
         dupes = sorted({n for n in names if names.count(n) > 1})
         if dupes:
             raise ValueError(f"plugin names must be unique; repeated: {dupes}")
+        if self.filter.architecture == "dead_reckoning" and self.plugins:
+            raise ValueError(
+                "filter.architecture dead_reckoning uses no plugins (it reads odometer.csv"
+                " itself; its options are filter.dead_reckoning): remove the plugins list"
+            )
+        if self.filter.architecture == "federated" and not any(p.enabled for p in self.plugins):
+            raise ValueError("filter.architecture federated needs at least one enabled plugin")
         return self
 
     def to_yaml(self) -> str:

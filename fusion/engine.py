@@ -24,6 +24,7 @@ from numpy.typing import NDArray
 
 from fusion import attitude
 from fusion.config import ConfigError, FusionConfig, ImuTuning
+from fusion.dead_reckoning import dead_reckon
 from fusion.earth import LocalFrame
 from fusion.error_model import (
     ErrorModel,
@@ -178,6 +179,7 @@ class Engine:
         ]
         self.gates = [b.gate_probability for b in config.plugins if b.enabled]
         imu = resolve_imu_noise(config.imu, meta.imu.spec)
+        self.imu_noise = imu
         sigma = meta.initial.sigma
         scale = config.filter.initial_sigma_scale
         blocks = common_blocks(
@@ -222,6 +224,8 @@ class Engine:
         wall0 = time.perf_counter()
         imu = self.recording.imu
         cfg = self.config.filter
+        if cfg.architecture == "dead_reckoning":
+            return self._dead_reckoning(wall0)
         sins = Strapdown(
             imu.t, imu.gyro, imu.accel, self.initial_state(), coning_sculling=cfg.coning_sculling
         )
@@ -281,6 +285,26 @@ class Engine:
             final_covariance=final_covariance,
             innovations=logs,
             faults=list(bank.faults),
+            wall_time_s=time.perf_counter() - wall0,
+            config=self.config,
+            recording_name=self.recording.meta.name,
+        )
+
+    def _dead_reckoning(self, wall0: float) -> RunResult:
+        solution = dead_reckon(
+            self.recording,
+            self.initial_state(),
+            self.frame,
+            self.imu_noise,
+            self.config.filter.dead_reckoning,
+        )
+        return RunResult(
+            solution=solution,
+            layout=self.layout,
+            final_state=np.zeros(self.layout.dim),
+            final_covariance=self.layout.initial_covariance(),
+            innovations={},
+            faults=[],
             wall_time_s=time.perf_counter() - wall0,
             config=self.config,
             recording_name=self.recording.meta.name,

@@ -72,7 +72,8 @@ def summary(result: RunResult, recording: Recording) -> str:
             f"faults     {actions.count(ISOLATE)} isolations, {actions.count(READMIT)} "
             "re-admissions (faults.csv)"
         )
-    for block in result.layout.blocks[3:]:
+    estimated = result.config.filter.architecture != "dead_reckoning"
+    for block in result.layout.blocks[3:] if estimated else ():
         est, sd = result.state_estimate(block.name)
         lines.append(
             f"estimate   {block.name}: {np.array2string(est, precision=6)} "

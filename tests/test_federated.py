@@ -7,7 +7,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from fusion.config import FaultDetectionOptions, FederatedOptions, load_config, parse_config
+from fusion.config import (
+    ConfigError,
+    FaultDetectionOptions,
+    FederatedOptions,
+    load_config,
+    parse_config,
+)
 from fusion.engine import Engine
 from fusion.error_model import ImuNoise, StateLayout, common_blocks
 from fusion.fault_detection import ISOLATE, READMIT, FaultMonitor
@@ -130,3 +136,21 @@ def test_monitor_isolates_on_plugin_indicator() -> None:
     assert mon.observe(0.0, 0.5, 1, False) is None
     event = mon.observe(0.1, 0.5, 1, True)
     assert event is not None and event.action == ISOLATE and event.reason == "plugin indicator"
+
+
+def test_dead_reckoning_config_runs_and_refuses_plugins(tmp_path: Path) -> None:
+    """dr_traditional integrates the odometer along the free attitude; plugins are an error."""
+    simulate("seed000-carrier", tmp_path / "rec", seed=5, overrides=["face.cycles=1"])
+    rec = read_recording(tmp_path / "rec")
+    config = load_config(CONFIGS / "dr_traditional.yaml")
+    result = Engine(config, rec).run()
+    np.testing.assert_array_equal(
+        result.solution.t[1:], rec.odometer.t[rec.odometer.t > rec.imu.t[0]]
+    )  # type: ignore[union-attr]
+    travelled = np.abs(rec.odometer.speed[1:] * np.diff(rec.odometer.t)).sum()  # type: ignore[union-attr]
+    path = np.linalg.norm(np.diff(result.solution.position, axis=0), axis=1).sum()
+    assert path == pytest.approx(travelled, rel=0.01)
+    data = config.model_dump()
+    data["plugins"] = [{"type": "odometer"}]
+    with pytest.raises(ConfigError, match="dead_reckoning uses no plugins"):
+        parse_config(data)
