@@ -49,7 +49,7 @@ def dead_reckon(
     t = np.concatenate([[data.t[0]], odo.t[keep]])
     speed = np.concatenate([[0.0], odo.speed[keep]]) / (1.0 + options.scale_error)
     rows = np.clip(np.searchsorted(data.t, t), 0, data.t.size - 1)
-    c_b_n = dcm_from_quat(free.quaternion[rows])
+    c_b_n = np.array([dcm_from_quat(q) for q in free.quaternion[rows]])
     c_m_b = dcm_from_euler(*np.deg2rad(options.mounting_deg))
     v_n = c_b_n @ (c_m_b @ np.array([0.0, 1.0, 0.0])) * speed[:, None]
     dt = np.diff(t, prepend=t[0])

@@ -310,17 +310,26 @@ class Strapdown:
         ``v ← v − δv``; ``C_b^n ← R(φ) C̃_b^n`` (since ``C̃ = (I − φ×) C``); position minus the
         ENU-metre error converted to (L, λ, h); biases ``b ← b + ε`` and ``b ← b + ∇``.
         """
-        nav = self.nav
-        nav[VEL : VEL + 3] -= velocity_error
-        q = attitude.quat_multiply(attitude.quat_from_rotvec(attitude_error), nav[Q0 : Q0 + 4])
-        nav[Q0 : Q0 + 4] = q / np.linalg.norm(q)
-        rm, rn = earth.radii(nav[LAT])
-        h = nav[HGT]
-        nav[LAT] -= position_error_enu[1] / (rm + h)
-        nav[LON] -= position_error_enu[0] / ((rn + h) * math.cos(nav[LAT]))
-        nav[HGT] -= position_error_enu[2]
+        remove_errors(self.nav, velocity_error, attitude_error, position_error_enu)
         self.gyro_bias += gyro_bias_error
         self.accel_bias += accel_bias_error
+
+
+def remove_errors(
+    nav: NDArray[np.float64],
+    velocity_error: NDArray[np.float64],
+    attitude_error: NDArray[np.float64],
+    position_error_enu: NDArray[np.float64],
+) -> None:
+    """Remove estimated errors from a packed navigation state in place (see ``correct``)."""
+    nav[VEL : VEL + 3] -= velocity_error
+    q = attitude.quat_multiply(attitude.quat_from_rotvec(attitude_error), nav[Q0 : Q0 + 4])
+    nav[Q0 : Q0 + 4] = q / np.linalg.norm(q)
+    rm, rn = earth.radii(nav[LAT])
+    h = nav[HGT]
+    nav[LAT] -= position_error_enu[1] / (rm + h)
+    nav[LON] -= position_error_enu[0] / ((rn + h) * math.cos(nav[LAT]))
+    nav[HGT] -= position_error_enu[2]
 
 
 @dataclass(frozen=True)
