@@ -1,0 +1,163 @@
+"""Rauch–Tung–Striebel smoothing that is correct under closed-loop feedback (seed 000 §3.4).
+
+The trap. With feedback the forward filter resets its common error states to zero after every
+correction, so the stored error estimates are relative to a nominal trajectory that keeps
+moving; the textbook RTS run on them smooths the wrong quantity.
+
+The derivation used here. Call e_k the error of the SINS state *before* the feedback of step k
+(k indexes the filter's steps: covariance steps and aiding epochs). The forward filter holds
+the prior x_k⁻, P_k⁻ and, after the updates of step k, the posterior x_k⁺, P_k⁺ of e_k; it then
+feeds back u_k (the common states of x_k⁺; zero for open-loop plugin states), so the SINS after
+feedback carries the error e_k − u_k, and the linearized dynamics between steps give
+
+    e_{k+1} = Φ_k (e_k − u_k) + w_k,        x_{k+1}⁻ = Φ_k (x_k⁺ − u_k)
+
+— a linear system with a known input −Φ_k u_k. The RTS recursion for such a system is the usual
+one because the input cancels in the difference e_{k+1} − x_{k+1}⁻ (eqs. 28–31 of seed 000 in
+this reference):
+
+    C_k = P_k⁺ Φ_kᵀ (P_{k+1}⁻)⁻¹
+    ê_k = x_k⁺ + C_k (ê_{k+1} − x_{k+1}⁻),      P_k^s = P_k⁺ + C_k (P_{k+1}^s − P_{k+1}⁻) C_kᵀ
+
+started from ê_N = x_N⁺, P_N^s = P_N⁺. The smoothed error of the SINS state as output (after
+feedback) is d_k = ê_k − u_k, removed like a feedback; σ comes from P_k^s. Everything the
+recursion reads is what the forward filter stored — priors, posteriors, Φ and the feedback
+actually applied — nothing is recomputed (Stone Soup's principle).
+
+Federated filter: the smoother runs on the fused global estimate of the 15 common states (the
+fused prior before and the fused posterior after each update round, Φ_cc). This is an
+approximation: it treats the fused estimate as if it came from a centralized filter over the
+common states alone, ignoring the locals' own states and the suboptimality of the fusion.
+
+Memory: a :class:`StepStore` keeps the steps of one smoothing window in chunks; chunks beyond a
+memory budget are numpy memory maps in a temporary directory (spill to disk). Online smoothing
+(at each face end) keeps only the pass being smoothed.
+"""
+
+from __future__ import annotations
+
+import shutil
+import tempfile
+from pathlib import Path
+
+import numpy as np
+import scipy.linalg
+from numpy.typing import NDArray
+
+CHUNK = 2048
+FIELDS = ("phi", "x_prior", "p_prior", "x_post", "p_post", "feedback")
+
+
+class StepStore:
+    """What the forward filter stored at each step of a smoothing window.
+
+    Parameters
+    ----------
+    dim
+        Dimension of the smoothed state.
+    memory_budget_mb
+        In-memory size beyond which further chunks are written to disk.
+    """
+
+    def __init__(self, dim: int, memory_budget_mb: float = 512.0) -> None:
+        self.dim = dim
+        self.budget = memory_budget_mb * 1e6
+        self._chunks: list[dict[str, NDArray[np.float64]]] = []
+        self.t: list[float] = []
+        self.output: list[bool] = []
+        self.n = 0
+        self._bytes = 0.0
+        self._spill: Path | None = None
+
+    @property
+    def spilled(self) -> bool:
+        """Whether some chunks live on disk."""
+        return self._spill is not None
+
+    def _new_chunk(self) -> dict[str, NDArray[np.float64]]:
+        n = self.dim
+        shapes = {
+            "phi": (CHUNK, n, n),
+            "x_prior": (CHUNK, n),
+            "p_prior": (CHUNK, n, n),
+            "x_post": (CHUNK, n),
+            "p_post": (CHUNK, n, n),
+            "feedback": (CHUNK, n),
+        }
+        size = sum(8.0 * np.prod(s) for s in shapes.values())
+        if self._bytes + size <= self.budget:
+            self._bytes += size
+            return {k: np.empty(s) for k, s in shapes.items()}
+        if self._spill is None:
+            self._spill = Path(tempfile.mkdtemp(prefix="fusion-smoother-"))
+        index = len(self._chunks)
+        return {
+            k: np.lib.format.open_memmap(
+                self._spill / f"{index}-{k}.npy", mode="w+", dtype=np.float64, shape=s
+            )
+            for k, s in shapes.items()
+        }
+
+    def append(
+        self,
+        t: float,
+        phi: NDArray[np.float64],
+        prior: tuple[NDArray[np.float64], NDArray[np.float64]],
+        posterior: tuple[NDArray[np.float64], NDArray[np.float64]],
+        feedback: NDArray[np.float64],
+        output: bool,
+    ) -> None:
+        """Store one step: Φ from the previous step, prior, posterior, applied feedback."""
+        i = self.n % CHUNK
+        if i == 0:
+            self._chunks.append(self._new_chunk())
+        chunk = self._chunks[-1]
+        chunk["phi"][i] = phi
+        chunk["x_prior"][i], chunk["p_prior"][i] = prior
+        chunk["x_post"][i], chunk["p_post"][i] = posterior
+        chunk["feedback"][i] = feedback
+        self.t.append(t)
+        self.output.append(output)
+        self.n += 1
+
+    def get(self, name: str, k: int) -> NDArray[np.float64]:
+        """Stored field ``name`` of step ``k``."""
+        return self._chunks[k // CHUNK][name][k % CHUNK]
+
+    def close(self) -> None:
+        """Free the memory and delete any spill files."""
+        self._chunks.clear()
+        if self._spill is not None:
+            shutil.rmtree(self._spill, ignore_errors=True)
+            self._spill = None
+
+
+def rts(
+    store: StepStore, keep: NDArray[np.bool_] | None = None
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Smoothed errors d_k = ê_k − u_k of the fed-back state, and P_k^s, at the kept steps.
+
+    ``keep`` selects the steps to return (default: the steps stored as output epochs). The
+    first step of the window is the terminal condition of nothing: the recursion runs from the
+    last step of the window back to the first.
+    """
+    n = store.n
+    keep = np.asarray(store.output if keep is None else keep, dtype=bool)
+    rows = np.cumsum(keep) - 1
+    d_out = np.empty((int(keep.sum()), store.dim))
+    p_out = np.empty((int(keep.sum()), store.dim, store.dim))
+    e_next = store.get("x_post", n - 1).copy()
+    p_next = store.get("p_post", n - 1).copy()
+    for k in range(n - 1, -1, -1):
+        if k < n - 1:
+            p_post = store.get("p_post", k)
+            p_prior_next = store.get("p_prior", k + 1)
+            cross = p_post @ store.get("phi", k + 1).T
+            gain = scipy.linalg.solve(p_prior_next, cross.T, assume_a="pos").T
+            e_next = store.get("x_post", k) + gain @ (e_next - store.get("x_prior", k + 1))
+            p_next = p_post + gain @ (p_next - p_prior_next) @ gain.T
+            p_next = 0.5 * (p_next + p_next.T)
+        if keep[k]:
+            d_out[rows[k]] = e_next - store.get("feedback", k)
+            p_out[rows[k]] = p_next
+    return d_out, p_out
