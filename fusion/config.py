@@ -126,6 +126,15 @@ class PluginBlock(BaseModel):
         return self.local or self.instance_name
 
 
+class SmootherOptions(_Strict):
+    """RTS smoothing (seed 000 §3.4): off, over the whole recording, or online at face ends."""
+
+    mode: Literal["off", "whole", "online"] = "off"
+    memory_budget_mb: float = Field(
+        256.0, ge=0, description="stored steps beyond this spill to a temporary directory"
+    )
+
+
 class OutputOptions(_Strict):
     """What ``fusion run`` writes."""
 
@@ -141,6 +150,7 @@ class FusionConfig(_Strict):
     imu: ImuTuning = ImuTuning()
     filter: FilterOptions = FilterOptions()
     plugins: list[PluginBlock] = []
+    smoother: SmootherOptions = SmootherOptions()
     output: OutputOptions = OutputOptions()
     bridge_imu_gaps: bool = Field(False, description="accept IMU gaps > 5 samples, reported")
 

@@ -38,6 +38,7 @@ from fusion.filter_bank import CentralizedFilter, FilterBank
 from fusion.kalman import KalmanFilter
 from fusion.plugin import MeasurementContext, Plugin, create_plugin
 from fusion.recording import ImuSpec, Recording
+from fusion.smoother import WindowedSmoother
 from fusion.solution import Solution
 from fusion.strapdown import HGT, LAT, LON, Q0, VEL, NavState, Strapdown
 
@@ -79,6 +80,10 @@ class RunResult:
     wall_time_s: float
     config: FusionConfig
     recording_name: str
+    smoothed: Solution | None = None
+    """The RTS-smoothed solution when smoothing is configured."""
+    smoother_peak_steps: int = 0
+    """Most filter steps held in memory at once for smoothing."""
 
     @property
     def duration_s(self) -> float:
@@ -240,6 +245,11 @@ class Engine:
         out_t = [t0]
         out_nav = [sins.nav.copy()]
         out_cov = [bank.position_covariance()]
+        smoother = self._smoother(bank)
+        if smoother is not None:
+            state = bank.smoothing_state()
+            eye = np.eye(bank.smoothing_dim)
+            smoother.step(t0, eye, state, state, np.zeros(bank.smoothing_dim), sins.nav)
         t_cov = t0
         n_events = len(times)
         report_every = max(n_events // 100, 1)
@@ -251,11 +261,13 @@ class Engine:
                 j += 1
             sins.advance_to(te)
             dt = te - t_cov
+            phi = None
             if dt > 1e-9:
                 f_n = sins.take_velocity_increment() / dt
                 phi, qd = self.model.discrete(sins.nav, f_n, sins.c_b_n, dt)
                 bank.predict(phi, qd)
                 t_cov = te
+            prior = bank.smoothing_state() if smoother is not None else None
             updated = False
             is_output = False
             for k in range(i, j):
@@ -264,9 +276,15 @@ class Engine:
                     is_output |= src == OUTPUT or (src == GRID and rate is None)
                     continue
                 updated |= self._update(src, int(indices[k]), te, sins, bank, logs)
+            posterior = bank.smoothing_state() if smoother is not None else None
+            dx = np.zeros(15)
             if bank.fusion_due(te, updated):
                 dx = bank.feedback(te)
                 sins.correct(dx[0:3], dx[3:6], dx[6:9], dx[9:12], dx[12:15])
+            if smoother is not None and prior is not None and posterior is not None:
+                self._smoothing_step(
+                    smoother, bank, te, phi, prior, posterior, dx, sins.nav if is_output else None
+                )
             if is_output:
                 out_t.append(te)
                 out_nav.append(sins.nav.copy())
@@ -275,6 +293,10 @@ class Engine:
                 progress(j / n_events)
             i = j
         solution = self._solution(np.array(out_t), np.array(out_nav), np.array(out_cov))
+        smoothed = None
+        if smoother is not None:
+            smoother.close_window()
+            smoothed = self._solution(*smoother.rows())
         final, final_covariance = bank.estimate()
         final[self.layout.slice("gyro_bias")] += sins.gyro_bias
         final[self.layout.slice("accel_bias")] += sins.accel_bias
@@ -288,7 +310,48 @@ class Engine:
             wall_time_s=time.perf_counter() - wall0,
             config=self.config,
             recording_name=self.recording.meta.name,
+            smoothed=smoothed,
+            smoother_peak_steps=smoother.peak_steps if smoother is not None else 0,
         )
+
+    def _smoother(self, bank: FilterBank) -> WindowedSmoother | None:
+        """The configured smoother, its windows closing at the plugins' window ends (online)."""
+        opts = self.config.smoother
+        if opts.mode == "off":
+            return None
+        ends = np.empty(0)
+        if opts.mode == "online":
+            ends = np.sort(np.concatenate([np.empty(0)] + [p.window_ends() for p in self.plugins]))
+            if ends.size == 0:
+                raise ConfigError(
+                    "config key smoother.mode: online smoothing needs a plugin that reports"
+                    " window ends (face ends), e.g. cpoem; none of the configured plugins does"
+                )
+        return WindowedSmoother(bank.smoothing_dim, ends, opts.memory_budget_mb)
+
+    def _smoothing_step(
+        self,
+        smoother: WindowedSmoother,
+        bank: FilterBank,
+        t: float,
+        phi: NDArray[np.float64] | None,
+        prior: tuple[NDArray[np.float64], NDArray[np.float64]],
+        posterior: tuple[NDArray[np.float64], NDArray[np.float64]],
+        correction: NDArray[np.float64],
+        nav_after: NDArray[np.float64] | None,
+    ) -> None:
+        """Store one step; when it closes a window, hand the smoothed positions to the plugins."""
+        dim = bank.smoothing_dim
+        feedback = np.zeros(dim)
+        feedback[:15] = correction
+        transition = np.eye(dim) if phi is None else bank.smoothing_transition(phi)
+        added = smoother.step(t, transition, prior, posterior, feedback, nav_after)
+        if added:
+            t_s, nav_s, cov_s = smoother.rows()
+            rows = slice(len(t_s) - added, None)
+            enu = self.frame.to_enu(nav_s[rows, LAT], nav_s[rows, LON], nav_s[rows, HGT])
+            for plugin in self.plugins:
+                plugin.receive_smoothed(t_s[rows], enu, cov_s[rows])
 
     def _dead_reckoning(self, wall0: float) -> RunResult:
         solution = dead_reckon(

@@ -243,6 +243,19 @@ class FederatedFilter:
         _, p_g = _fuse(self._members(), self.master)
         return p_g[6:9, 6:9].copy()
 
+    @property
+    def smoothing_dim(self) -> int:
+        """The fused common states are smoothed (see :mod:`fusion.smoother`)."""
+        return N_COMMON
+
+    def smoothing_state(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """The fused common-state estimate (eq. 35) without side effects."""
+        return _fuse(self._members(), self.master)
+
+    def smoothing_transition(self, phi: NDArray[np.float64]) -> NDArray[np.float64]:
+        """Φ of the common states."""
+        return phi[COMMON, COMMON]
+
     def estimate(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         """The global estimate over the full layout.
 

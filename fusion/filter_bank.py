@@ -48,6 +48,16 @@ class FilterBank(Protocol):
     def position_covariance(self) -> NDArray[np.float64]:
         """Current 3×3 covariance of the position error (local metres)."""
 
+    @property
+    def smoothing_dim(self) -> int:
+        """Dimension of the state the smoother works on."""
+
+    def smoothing_state(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """Current estimate and covariance of the smoothed state (before any feedback)."""
+
+    def smoothing_transition(self, phi: NDArray[np.float64]) -> NDArray[np.float64]:
+        """Φ of the smoothed state cut from the full-layout Φ."""
+
     def estimate(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         """Current estimate and covariance over the full layout."""
 
@@ -85,6 +95,19 @@ class CentralizedFilter:
     def position_covariance(self) -> NDArray[np.float64]:
         """Position block of P."""
         return self.kf.P[self._position, self._position].copy()
+
+    @property
+    def smoothing_dim(self) -> int:
+        """Every state is smoothed."""
+        return self.layout.dim
+
+    def smoothing_state(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """The filter's state and covariance."""
+        return self.kf.x.copy(), self.kf.P.copy()
+
+    def smoothing_transition(self, phi: NDArray[np.float64]) -> NDArray[np.float64]:
+        """The full Φ."""
+        return phi
 
     def estimate(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         """The filter's state and covariance."""

@@ -24,11 +24,17 @@ def write_outputs(
     if result.config.filter.architecture == "federated":
         files["faults"] = out / "faults.csv"
         write_faults(result.faults, files["faults"])
+    solutions = {"solution.csv": result.solution}
+    if result.smoothed is not None:
+        files["smoothed"] = out / "smoothed.csv"
+        write_solution(result.smoothed, files["smoothed"])
+        solutions["smoothed.csv"] = result.smoothed
     truth = recording.truth
     if truth is not None:
         files["metrics"] = out / "metrics.json"
         write_metrics_json(
-            {"solution.csv": compute_metrics(result.solution, truth)}, files["metrics"]
+            {name: compute_metrics(sol, truth) for name, sol in solutions.items()},
+            files["metrics"],
         )
     if plots:
         from fusion import plots as figures
@@ -80,9 +86,11 @@ def summary(result: RunResult, recording: Recording) -> str:
             f"± {np.array2string(sd, precision=6)}"
         )
     if recording.truth is not None:
-        m = compute_metrics(sol, recording.truth)
-        lines.append(
-            f"accuracy   horizontal RMS {m['horizontal_rms']:.3f} m, 3-D RMS {m['rms_3d']:.3f} m,"
-            f" max horizontal {m['horizontal_max']:.3f} m"
-        )
+        named = [("accuracy", sol)] + ([("smoothed", result.smoothed)] if result.smoothed else [])
+        for label, solution in named:
+            m = compute_metrics(solution, recording.truth)
+            lines.append(
+                f"{label:10s} horizontal RMS {m['horizontal_rms']:.3f} m, 3-D RMS"
+                f" {m['rms_3d']:.3f} m, max horizontal {m['horizontal_max']:.3f} m"
+            )
     return "\n".join(lines)

@@ -132,6 +132,20 @@ class Plugin(ABC):
     def measure(self, index: int, ctx: MeasurementContext) -> Measurement | None:
         """The measurement of epoch ``index``, or ``None``."""
 
+    def window_ends(self) -> NDArray[np.float64]:
+        """Times at which online smoothing should close a window (e.g. face ends); default none."""
+        return np.empty(0)
+
+    def receive_smoothed(
+        self,
+        t: NDArray[np.float64],
+        position_enu: NDArray[np.float64],
+        position_covariance: NDArray[np.float64],
+    ) -> None:
+        """Smoothed positions (origin ENU, m) and their covariances of a window just smoothed
+        online, in time order (e.g. to refresh stored points); default: ignored."""
+        return None
+
 
 class PluginError(ValueError):
     """A plugin cannot be found or its options are invalid."""

@@ -44,6 +44,8 @@ import numpy as np
 import scipy.linalg
 from numpy.typing import NDArray
 
+from fusion.strapdown import remove_errors
+
 CHUNK = 2048
 FIELDS = ("phi", "x_prior", "p_prior", "x_post", "p_post", "feedback")
 
@@ -138,8 +140,8 @@ def rts(
     """Smoothed errors d_k = ê_k − u_k of the fed-back state, and P_k^s, at the kept steps.
 
     ``keep`` selects the steps to return (default: the steps stored as output epochs). The
-    first step of the window is the terminal condition of nothing: the recursion runs from the
-    last step of the window back to the first.
+    recursion runs from the last step of the window (where the smoothed estimate is the filtered
+    one) back to the first; the prior of the first step is not used.
     """
     n = store.n
     keep = np.asarray(store.output if keep is None else keep, dtype=bool)
@@ -161,3 +163,75 @@ def rts(
             d_out[rows[k]] = e_next - store.get("feedback", k)
             p_out[rows[k]] = p_next
     return d_out, p_out
+
+
+class WindowedSmoother:
+    """Forward-pass bookkeeping for smoothing over windows that end at given times.
+
+    With no window ends the whole recording is one window (fixed-interval smoothing); with the
+    face-end times of a pass it smooths each pass as soon as the shearer reaches the end
+    (seed 000 Fig. 4), keeping only that pass in memory.
+
+    Parameters
+    ----------
+    dim
+        Dimension of the smoothed state.
+    window_ends
+        Sorted times at which a window closes (after the step at that time).
+    memory_budget_mb
+        Per-window in-memory budget before spilling to disk.
+    """
+
+    def __init__(self, dim: int, window_ends: NDArray[np.float64], memory_budget_mb: float) -> None:
+        self.dim = dim
+        self.window_ends = np.asarray(window_ends, dtype=float)
+        self.budget = memory_budget_mb
+        self.store = StepStore(dim, memory_budget_mb)
+        self._navs: list[NDArray[np.float64]] = []
+        self.t: list[float] = []
+        self.nav: list[NDArray[np.float64]] = []
+        self.covariance: list[NDArray[np.float64]] = []
+        self.peak_steps = 0
+        self.spilled = False
+
+    def step(
+        self,
+        t: float,
+        phi: NDArray[np.float64],
+        prior: tuple[NDArray[np.float64], NDArray[np.float64]],
+        posterior: tuple[NDArray[np.float64], NDArray[np.float64]],
+        feedback: NDArray[np.float64],
+        nav_after: NDArray[np.float64] | None,
+    ) -> int:
+        """Store a step (``nav_after`` at output epochs); return the number of smoothed rows
+        added (non-zero when this step closed a window)."""
+        self.store.append(t, phi, prior, posterior, feedback, nav_after is not None)
+        if nav_after is not None:
+            self._navs.append(nav_after.copy())
+        due = np.any((self.window_ends > self.store.t[0]) & (self.window_ends <= t))
+        return self.close_window() if due and self.store.n > 1 else 0
+
+    def close_window(self) -> int:
+        """Smooth the stored window, keep its output rows, start an empty window; return the
+        number of rows it added."""
+        store = self.store
+        self.peak_steps = max(self.peak_steps, store.n)
+        self.spilled |= store.spilled
+        if any(store.output):
+            d, p_s = rts(store)
+            times = np.asarray(store.t)[np.asarray(store.output, dtype=bool)]
+            for t, nav, dk, pk in zip(times, self._navs, d, p_s, strict=True):
+                smoothed = nav.copy()
+                remove_errors(smoothed, dk[0:3], dk[3:6], dk[6:9])
+                self.t.append(float(t))
+                self.nav.append(smoothed)
+                self.covariance.append(pk[6:9, 6:9].copy())
+        added = len(self._navs)
+        store.close()
+        self.store = StepStore(self.dim, self.budget)
+        self._navs = []
+        return added
+
+    def rows(self) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+        """Times, smoothed navigation states and position covariances of all smoothed rows."""
+        return np.array(self.t), np.array(self.nav), np.array(self.covariance)
