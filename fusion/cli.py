@@ -1,4 +1,5 @@
-"""The ``fusion`` command: run, validate, validate-config, simulate, sim-plot, demo, plugins."""
+"""The ``fusion`` command: run, validate, validate-config, simulate, sim-plot, import, demo,
+plugins."""
 
 from __future__ import annotations
 
@@ -15,6 +16,7 @@ examples:
   fusion simulate --list
   fusion simulate longwall-200m rec/ --seed 3 --set motion.vibration=false
   fusion validate rec/
+  fusion import broad ../shared/datasets/broad/05_undisturbed_slow_rotation_with_breaks_B.mat rec/
   fusion run --config configs/sins_only.yaml --recording rec/ --out out/
   fusion validate-config configs/sins_only.yaml
 """
@@ -113,6 +115,14 @@ def _cmd_sim_plot(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_import(args: argparse.Namespace) -> int:
+    from fusion.importers import import_dataset
+
+    print(import_dataset(args.kind, args.src, args.out))
+    print(f"{args.out}: valid shearer-recording/1")
+    return 0
+
+
 def _cmd_demo(args: argparse.Namespace) -> int:
     out = Path(args.out)
     recording = out / "recording"
@@ -149,6 +159,8 @@ def _cmd_plugins(args: argparse.Namespace) -> int:
 
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser of the ``fusion`` command."""
+    from fusion.importers import IMPORTERS
+
     parser = argparse.ArgumentParser(
         prog="fusion",
         description="Longwall shearer positioning: SINS fused with pluggable aiding sources.",
@@ -193,6 +205,12 @@ def build_parser() -> argparse.ArgumentParser:
     plot.add_argument("out", help="PNG file")
     plot.set_defaults(func=_cmd_sim_plot)
 
+    imp = sub.add_parser("import", help="convert a real dataset into a recording")
+    imp.add_argument("kind", choices=sorted(IMPORTERS))
+    imp.add_argument("src", help="dataset folder (rtklib-drive) or trial .mat file")
+    imp.add_argument("out", help="recording directory to write")
+    imp.set_defaults(func=_cmd_import)
+
     demo = sub.add_parser("demo", help="simulate the default recording and fuse it")
     demo.add_argument("--out", default="out/demo")
     demo.add_argument("--scenario", default=DEFAULT_DEMO_SCENARIO)
@@ -209,13 +227,14 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``fusion`` console script."""
     from fusion.config import ConfigError
+    from fusion.importers import DatasetError
     from fusion.plugin import PluginError
     from fusion.recording import RecordingError
 
     args = build_parser().parse_args(argv)
     try:
         return int(args.func(args))
-    except (ConfigError, RecordingError, PluginError) as exc:
+    except (ConfigError, RecordingError, PluginError, DatasetError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
 
