@@ -13,6 +13,7 @@ import pytest
 import scipy.io
 
 from fusion.attitude import dcm_from_euler, quat_from_dcm, wrap_angle
+from fusion.cli import main
 from fusion.earth import normal_gravity
 from fusion.importers import (
     DatasetError,
@@ -327,6 +328,15 @@ def test_broad_fixes_are_decimated_optical_positions(broad) -> None:
 # --------------------------------------------------------------------------------------------
 # Bad input (no dataset needed)
 # --------------------------------------------------------------------------------------------
+
+
+def test_cli_import_writes_a_valid_recording(tmp_path: Path, capsys) -> None:
+    src = _need(ROOT / "pyshoe-vicon" / f"{PYSHOE_WALK}.mat")
+    assert main(["import", "pyshoe", str(src), str(tmp_path / "rec")]) == 0
+    assert "valid shearer-recording/1" in capsys.readouterr().out
+    assert main(["validate", str(tmp_path / "rec")]) == 0
+    assert main(["import", "pyshoe", str(tmp_path / "none.mat"), str(tmp_path / "x")]) == 2
+    assert "none.mat: no such file" in capsys.readouterr().err
 
 
 def test_unknown_kind_and_missing_source_are_named(tmp_path: Path) -> None:
