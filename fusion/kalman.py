@@ -17,8 +17,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 from functools import lru_cache
 
+import numba
 import numpy as np
-import scipy.linalg
 import scipy.stats
 from numpy.typing import NDArray
 
@@ -95,22 +95,74 @@ class KalmanFilter:
     ) -> UpdateResult:
         """Measurement update (see module docstring); ``z`` (m,), ``h`` (m, n), ``r`` (m, m)."""
         z = np.atleast_1d(np.asarray(z, dtype=float))
-        h = np.atleast_2d(h)
-        r = np.atleast_2d(r)
-        ph_t = self.P @ h.T
-        s = h @ ph_t + r
-        chol = scipy.linalg.cho_factor(s, lower=True, check_finite=False)
-        nu = z - h @ self.x
-        whitened = scipy.linalg.solve_triangular(chol[0], nu, lower=True, check_finite=False)
+        h = np.ascontiguousarray(np.atleast_2d(h), dtype=float)
+        r = np.ascontiguousarray(np.atleast_2d(r), dtype=float)
+        nu, whitened, chol, ph_t = _innovation(self.x, self.P, z, h, r)
         nis = float(whitened @ whitened)
         threshold = None
         if gate_probability is not None:
             threshold = chi2_threshold(len(z), gate_probability)
             if nis > threshold:
                 return UpdateResult(False, nu, whitened, nis, threshold)
-        gain = scipy.linalg.cho_solve(chol, ph_t.T, check_finite=False).T
-        self.x = self.x + gain @ nu
-        i_kh = self._identity - gain @ h
-        p = i_kh @ self.P @ i_kh.T + gain @ r @ gain.T
-        self.P = 0.5 * (p + p.T)
+        self.x, self.P = _joseph(self.x, self.P, nu, chol, ph_t, h, r, self._identity)
         return UpdateResult(True, nu, whitened, nis, threshold)
+
+
+@numba.njit(cache=True)
+def _forward_substitution(
+    lower: NDArray[np.float64], b: NDArray[np.float64]
+) -> NDArray[np.float64]:
+    """Solve ``L y = b`` for lower-triangular L; ``b`` (m,) or (m, k)."""
+    y = b.copy()
+    for i in range(lower.shape[0]):
+        for j in range(i):
+            y[i] -= lower[i, j] * y[j]
+        y[i] /= lower[i, i]
+    return y
+
+
+@numba.njit(cache=True)
+def _back_substitution(lower: NDArray[np.float64], b: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Solve ``Lᵀ y = b`` for lower-triangular L; ``b`` (m, k)."""
+    y = b.copy()
+    m = lower.shape[0]
+    for i in range(m - 1, -1, -1):
+        for j in range(i + 1, m):
+            y[i] -= lower[j, i] * y[j]
+        y[i] /= lower[i, i]
+    return y
+
+
+@numba.njit(cache=True)
+def _innovation(
+    x: NDArray[np.float64],
+    p: NDArray[np.float64],
+    z: NDArray[np.float64],
+    h: NDArray[np.float64],
+    r: NDArray[np.float64],
+) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+    """Innovation ν, whitened innovation L⁻¹ν, Cholesky factor L of S, and P Hᵀ."""
+    ph_t = p @ h.T
+    s = h @ ph_t + r
+    chol: NDArray[np.float64] = np.linalg.cholesky(0.5 * (s + s.T))
+    nu = z - h @ x
+    return nu, _forward_substitution(chol, nu), chol, ph_t
+
+
+@numba.njit(cache=True)
+def _joseph(
+    x: NDArray[np.float64],
+    p: NDArray[np.float64],
+    nu: NDArray[np.float64],
+    chol: NDArray[np.float64],
+    ph_t: NDArray[np.float64],
+    h: NDArray[np.float64],
+    r: NDArray[np.float64],
+    identity: NDArray[np.float64],
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Gain K = P Hᵀ S⁻¹ by two triangular solves, then the state and Joseph-form covariance."""
+    gain = _back_substitution(chol, _forward_substitution(chol, np.ascontiguousarray(ph_t.T))).T
+    x_new = x + gain @ nu
+    i_kh = identity - gain @ h
+    p_new = i_kh @ p @ i_kh.T + gain @ r @ gain.T
+    return x_new, 0.5 * (p_new + p_new.T)
