@@ -144,7 +144,7 @@ def _innovation(
     """Innovation ν, whitened innovation L⁻¹ν, Cholesky factor L of S, and P Hᵀ."""
     ph_t = p @ h.T
     s = h @ ph_t + r
-    chol: NDArray[np.float64] = np.linalg.cholesky(0.5 * (s + s.T))
+    chol = np.linalg.cholesky(0.5 * (s + s.T)).astype(np.float64)
     nu = z - h @ x
     return nu, _forward_substitution(chol, nu), chol, ph_t
 
