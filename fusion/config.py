@@ -106,6 +106,9 @@ class PluginBlock(BaseModel):
     gate_probability: float | None = Field(
         None, gt=0, lt=1, description="reject updates whose NIS exceeds this χ² quantile"
     )
+    max_rate_hz: float | None = Field(
+        None, gt=0, description="use at most this many epochs per second (None: every one)"
+    )
     local: str | None = Field(
         None, description="federated: the local filter this plugin joins (default: its name)"
     )

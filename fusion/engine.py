@@ -132,11 +132,27 @@ def resolve_imu_noise(tuning: ImuTuning, spec: ImuSpec | None) -> ImuNoise:
     return noise
 
 
+def _at_most(epochs: NDArray[np.float64], rate: float | None) -> NDArray[np.bool_]:
+    """Epochs kept when thinning to at most ``rate`` (greedy in time; epochs sharing a time
+    stamp, such as the ranges of one UWB cycle, are kept or dropped together)."""
+    if rate is None:
+        return np.ones(epochs.size, dtype=bool)
+    times = np.unique(epochs)
+    kept = np.zeros(times.size, dtype=bool)
+    next_time = -np.inf
+    for k, t in enumerate(times):
+        if t >= next_time - 1e-9:
+            kept[k] = True
+            next_time = t + 1.0 / rate
+    return np.isin(epochs, times[kept])
+
+
 def _event_schedule(
     t0: float,
     t_end: float,
     step: float,
     plugin_epochs: list[NDArray[np.float64]],
+    max_rates: list[float | None],
     output_times: NDArray[np.float64],
 ) -> tuple[NDArray[np.float64], NDArray[np.int64], NDArray[np.int64]]:
     """Merge all event times; return times, source and index.
@@ -151,8 +167,8 @@ def _event_schedule(
     times = [grid, output_times]
     sources = [np.full(grid.size, GRID), np.full(output_times.size, OUTPUT)]
     indices = [np.full(grid.size, -1), np.full(output_times.size, -1)]
-    for i, ep in enumerate(plugin_epochs):
-        keep = np.flatnonzero((ep > t0) & (ep <= t_end))
+    for i, (ep, rate) in enumerate(zip(plugin_epochs, max_rates, strict=True)):
+        keep = np.flatnonzero((ep > t0) & (ep <= t_end) & _at_most(ep, rate))
         times.append(ep[keep])
         sources.append(np.full(keep.size, i))
         indices.append(keep)
@@ -239,7 +255,12 @@ class Engine:
         rate = self.config.output.rate_hz
         output_times = np.arange(t0 + 1.0 / rate, t_end + 1e-9, 1.0 / rate) if rate else np.empty(0)
         times, sources, indices = _event_schedule(
-            t0, t_end, cfg.covariance_step_s, [p.epochs() for p in self.plugins], output_times
+            t0,
+            t_end,
+            cfg.covariance_step_s,
+            [p.epochs() for p in self.plugins],
+            [b.max_rate_hz for b in self.config.plugins if b.enabled],
+            output_times,
         )
         logs = {p.name: InnovationLog() for p in self.plugins}
         out_t = [t0]

@@ -195,3 +195,12 @@ def test_unknown_plugin_and_bad_plugin_option_are_named() -> None:
         Engine(parse_config({"name": "x", "plugins": [{"type": "odometr"}]}), rec)
     with pytest.raises(PluginError, match=r"plugins\[0\]\.sigma_scal: unknown key"):
         Engine(parse_config({"name": "x", "plugins": [{"type": "position", "sigma_scal": 2}]}), rec)
+
+
+def test_max_rate_thins_epochs_and_keeps_shared_time_stamps_together() -> None:
+    from fusion.engine import _at_most
+
+    epochs = np.array([0.0, 0.02, 0.02, 0.04, 0.1, 0.1, 0.12, 0.2, 0.31])
+    kept = _at_most(epochs, 10.0)
+    np.testing.assert_array_equal(epochs[kept], [0.0, 0.1, 0.1, 0.2, 0.31])
+    assert _at_most(epochs, None).all()
