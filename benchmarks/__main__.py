@@ -1,22 +1,32 @@
-"""Run a benchmark suite and print its table: ``python -m benchmarks SUITE``.
+"""Benchmark suites: ``python -m benchmarks SUITE [--runs N] [--out DIR] [--jobs J]
+[--scheduler tcp://host:port|local-dask] [--set key.sub=value ...]``.
 
-Suites: ``strapdown`` (mechanization cost per IMU sample, compiled vs interpreted, and the
-engine's real-time factor for free inertial navigation).
+Suites (issue 7): ``seed000`` (SEP per cutting cycle, Δ, RTS, IMU grades), ``seed002`` (MC and
+ZUPT), ``seed003`` (SINS/OD/MAG; CKF vs AFKF under magnetic interference), ``seed004`` (UWB),
+``ablation`` (every configuration, nominal and with each injected fault), ``speed`` (real-time
+factor and peak memory on the 8-hour shift, beside the naive covariance step). Each writes
+Markdown and CSV tables and PNG figures into ``--out`` (default ``benchmarks/results/SUITE/``).
+``all`` runs every suite and regenerates ``benchmarks/RESULTS.md``. ``strapdown`` prints the
+mechanization cost per IMU sample. ``real`` hands its arguments to ``benchmarks.real.main``
+(the real-dataset suite, issue 8) when that module exists.
+
+Monte Carlo runs are seeded (0 … N−1) and execute in ``--jobs`` local processes (default: one
+per core) or on a Dask cluster (``--scheduler``; needs ``pip install 'shearer-fusion[bench]'``);
+the tables are identical either way.
 """
 
 from __future__ import annotations
 
 import argparse
-import os
-import platform
+import shlex
+import sys
 import time
+from datetime import UTC, datetime
+from pathlib import Path
 
 import numpy as np
 
-
-def _machine() -> str:
-    cpu = platform.processor() or platform.machine()
-    return f"{cpu}, {os.cpu_count()} cores, Python {platform.python_version()}"
+from benchmarks.report import describe_machine
 
 
 def strapdown() -> None:
@@ -50,22 +60,117 @@ def strapdown() -> None:
     for k in range(1, m):
         _step.py_func(nav, hist, gyro[k] * 0.01, accel[k] * 0.01, 0.01, True)
     rows.append(("same step interpreted (no numba)", (time.perf_counter() - t0) / (m - 1)))
-    print(f"machine: {_machine()}; one process, one core")
+    print(f"machine: {describe_machine()}; one process, one core")
     print("| mechanization | µs per IMU sample | budget |")
     print("|---|---:|---:|")
     for name, sec in rows:
         print(f"| {name} | {sec * 1e6:.2f} | 10 |")
 
 
-SUITES = {"strapdown": strapdown}
+def _progress(done: int, total: int, task: object, seconds: float) -> None:
+    from benchmarks.runner import Task
+
+    assert isinstance(task, Task)
+    print(
+        f"[{done}/{total}] {task.suite} {task.group} seed {task.seed}: {seconds:.1f} s",
+        file=sys.stderr,
+        flush=True,
+    )
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser(prog="python -m benchmarks", description=__doc__)
-    parser.add_argument("suite", choices=sorted(SUITES))
-    args = parser.parse_args()
-    SUITES[args.suite]()
+def run_suites(names: list[str], args: argparse.Namespace, command: str) -> None:
+    """Run suites, write each one's outputs; with ``all`` also benchmarks/RESULTS.md."""
+    from benchmarks.report import BENCH_DIR, write_results_md, write_suite
+    from benchmarks.runner import collect, run_tasks
+    from benchmarks.suites import SUITES
+
+    sections = []
+    for name in names:
+        suite = SUITES[name]
+        runs = args.runs if args.runs is not None else suite.default_runs
+        out = Path(args.out) / name if args.out and len(names) > 1 else None
+        out = out or (Path(args.out) if args.out else BENCH_DIR / "results" / name)
+        tasks = suite.tasks(runs, tuple(args.set))
+        print(f"{name}: {len(tasks)} recordings, {runs} run(s) each row", file=sys.stderr)
+        merged = collect(run_tasks(tasks, args.jobs, args.scheduler, _progress))
+        output = write_suite(suite, merged, out, runs, command)
+        print(output.markdown)
+        sections.append((suite, output))
+    if args.suite == "all":
+        date = datetime.now(UTC).strftime("%Y-%m-%d %H:%M UTC")
+        path = write_results_md(sections, command, date)
+        print(f"wrote {path}", file=sys.stderr)
+
+
+def _real(argv: list[str]) -> int:
+    import importlib
+
+    try:
+        real = importlib.import_module("benchmarks.real")
+    except ImportError as exc:
+        if exc.name != "benchmarks.real":
+            raise
+        print(
+            "suite 'real' is not available: benchmarks/real.py (issue 8) does not exist yet",
+            file=sys.stderr,
+        )
+        return 2
+    return int(real.main(argv) or 0)
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Parse the command line and run the suite(s)."""
+    from benchmarks.suites import SUITES
+
+    argv = sys.argv[1:] if argv is None else argv
+    if argv[:1] == ["real"]:
+        return _real(argv[1:])
+    parser = argparse.ArgumentParser(
+        prog="python -m benchmarks",
+        description=__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    choices = [*sorted(SUITES), "all", "strapdown", "real"]
+    parser.add_argument("suite", choices=choices, help="suite to run ('real': issue 8's suite)")
+    parser.add_argument(
+        "--runs", type=int, help="Monte Carlo runs (seeds 0…N−1); default per suite"
+    )
+    parser.add_argument("--out", help="output directory (default benchmarks/results/SUITE)")
+    parser.add_argument(
+        "--jobs", type=int, default=None, help="local worker processes (default: cores)"
+    )
+    parser.add_argument(
+        "--scheduler",
+        help="tcp://host:port of a running Dask scheduler, or local-dask (a local cluster)",
+    )
+    parser.add_argument(
+        "--set",
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        help="scenario override for every recording, e.g. --set duration_s=900 (smoke runs)",
+    )
+    args = parser.parse_args(argv)
+    if args.suite == "strapdown":
+        strapdown()
+        return 0
+    if args.runs is not None and args.runs < 1:
+        parser.error("--runs must be at least 1")
+    if args.jobs is None:
+        import os
+
+        args.jobs = os.cpu_count() or 1
+    command = "python -m benchmarks " + " ".join(shlex.quote(a) for a in argv)
+    names = sorted(SUITES) if args.suite == "all" else [args.suite]
+    from benchmarks.runner import BenchmarkError
+
+    try:
+        run_suites(names, args, command)
+    except BenchmarkError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    return 0
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(main())

@@ -1,0 +1,161 @@
+"""Write a suite's outputs (CSV, Markdown, PNG) and the repository's ``benchmarks/RESULTS.md``.
+
+Layout of a suite's output directory (default ``benchmarks/results/SUITE/``, not committed):
+
+* ``runs.csv`` — every per-run row (wall-clock fields included);
+* ``TABLE.csv`` and ``TABLE.png`` — each table (mean, std, paper figure per column) and the bar
+  chart of its headline column;
+* ``results.md`` — the suite's tables in Markdown, the notes (skipped or failed methods) and
+  links to the figures;
+* ``figures/`` — per traced method (seed 0): plan view per cycle, error with ±3σ; per group with
+  faults: the fault timeline.
+"""
+
+from __future__ import annotations
+
+import os
+import platform
+import re
+import shutil
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from benchmarks.figures import plot_cycles, plot_error_envelope, plot_fault_timeline, plot_headline
+from benchmarks.runner import WALL_CLOCK_FIELDS, TaskResult, Trace
+from benchmarks.suites import Suite
+from benchmarks.tables import Table, build_table, rows_to_csv, to_csv, to_markdown
+
+BENCH_DIR = Path(__file__).resolve().parent
+RESULTS_MD = BENCH_DIR / "RESULTS.md"
+COMMITTED_FIGURES = BENCH_DIR / "figures"
+
+
+def describe_machine() -> str:
+    """CPU model, logical cores, OS and Python/NumPy versions of this machine."""
+    cpu = platform.processor() or platform.machine()
+    try:
+        for line in Path("/proc/cpuinfo").read_text(encoding="utf-8").splitlines():
+            if line.startswith("model name"):
+                cpu = line.split(":", 1)[1].strip()
+                break
+    except OSError:
+        pass
+    return (
+        f"{cpu}, {os.cpu_count()} logical cores, {platform.system()} {platform.release()},"
+        f" Python {platform.python_version()}, NumPy {np.__version__}"
+    )
+
+
+def slug(text: str) -> str:
+    """A file-name-safe form of a label."""
+    return re.sub(r"[^A-Za-z0-9.=-]+", "_", text.replace("Δ", "D")).strip("_")
+
+
+@dataclass
+class SuiteOutput:
+    """What a suite run wrote."""
+
+    tables: list[Table]
+    markdown: str
+    headline_figures: list[Path]
+
+
+def _trace_figures(traces: Sequence[Trace], figures: Path) -> list[Path]:
+    by_method: dict[tuple[str, str], list[Trace]] = {}
+    by_group: dict[str, list[Trace]] = {}
+    for tr in traces:
+        by_method.setdefault((tr.group, tr.method), []).append(tr)
+        if tr.solution == "forward":
+            by_group.setdefault(tr.group, []).append(tr)
+    written = []
+    for (group, method), items in sorted(by_method.items()):
+        stem = slug(f"{group}_{method}")
+        title = f"{method} — {group}, seed {items[0].seed}"
+        written.append(plot_cycles(items, figures / f"{stem}_plan.png", title))
+        for tr in items:
+            name = f"{stem}_{tr.solution}_errors.png"
+            written.append(plot_error_envelope(tr, figures / name, f"{title} ({tr.solution})"))
+    for group, items in sorted(by_group.items()):
+        if any(tr.injected or tr.events for tr in items):
+            title = f"{group}, seed {items[0].seed}"
+            written.append(plot_fault_timeline(items, figures / f"{slug(group)}_faults.png", title))
+    return written
+
+
+def write_suite(
+    suite: Suite, merged: TaskResult, out: Path, runs: int, command: str
+) -> SuiteOutput:
+    """Tables, figures and the suite's Markdown report into ``out``."""
+    out.mkdir(parents=True, exist_ok=True)
+    figures = out / "figures"
+    figures.mkdir(exist_ok=True)
+    (out / "runs.csv").write_text(rows_to_csv(merged.rows), encoding="utf-8")
+    tables = [build_table(spec, merged.rows) for spec in suite.tables()]
+    headline: list[Path] = []
+    parts = [f"### `{suite.name}` — {suite.description}", ""]
+    parts.append(f"{runs} run(s) per row (seeds 0…{runs - 1}); `{command}`.")
+    parts.append("")
+    for table in tables:
+        (out / f"{table.spec.name}.csv").write_text(to_csv(table), encoding="utf-8")
+        parts.append(to_markdown(table))
+        png = plot_headline(table, out / f"{table.spec.name}.png")
+        if png is not None:
+            headline.append(png)
+    if merged.notes:
+        parts.append("Not run:")
+        parts.append("")
+        parts.extend(f"- {note}" for note in merged.notes)
+        parts.append("")
+    trace_pngs = _trace_figures(merged.traces, figures)
+    if headline or trace_pngs:
+        parts.append(
+            "Figures: "
+            + ", ".join(f"[{p.name}]({p.relative_to(out).as_posix()})" for p in headline)
+            + (f"; {len(trace_pngs)} per-method figures in `figures/`" if trace_pngs else "")
+        )
+        parts.append("")
+    markdown = "\n".join(parts)
+    (out / "results.md").write_text(markdown, encoding="utf-8")
+    return SuiteOutput(tables, markdown, headline)
+
+
+def accuracy_csv(merged: TaskResult) -> str:
+    """The per-run rows without the wall-clock fields (what must not depend on the machine)."""
+    return rows_to_csv(merged.rows, exclude=WALL_CLOCK_FIELDS)
+
+
+def write_results_md(
+    sections: Sequence[tuple[Suite, SuiteOutput]], command: str, date: str
+) -> Path:
+    """``benchmarks/RESULTS.md``: command, date, machine, every suite's tables and figures.
+
+    The headline bar charts are copied to ``benchmarks/figures/`` (committed) so that the
+    Markdown's image links work in the repository.
+    """
+    COMMITTED_FIGURES.mkdir(exist_ok=True)
+    lines = [
+        "# Benchmark results",
+        "",
+        f"Regenerated by `{command}` on {date}.",
+        "",
+        f"Machine: {describe_machine()}.",
+        "",
+        "Every table: mean ± std over the Monte Carlo runs (seeded simulations of the scenario"
+        " presets), the seed paper's figure in parentheses where one exists. Per-run rows and"
+        " all figures: `benchmarks/results/SUITE/` after running the command.",
+        "",
+    ]
+    for suite, output in sections:
+        body = re.sub(r"^Figures: .*$", "", output.markdown, flags=re.MULTILINE).rstrip()
+        lines.append(body)
+        lines.append("")
+        for png in output.headline_figures:
+            target = COMMITTED_FIGURES / f"{suite.name}_{png.name}"
+            shutil.copyfile(png, target)
+            lines.append(f"![{png.stem}](figures/{target.name})")
+        lines.append("")
+    RESULTS_MD.write_text("\n".join(lines).rstrip() + "\n", encoding="utf-8")
+    return RESULTS_MD
