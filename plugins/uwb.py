@@ -1,0 +1,402 @@
+"""UWB ranges to surveyed anchors, tightly coupled (seed 004 §2, eqs. 13–25), and the UWB-only
+least-squares baseline.
+
+Tightly coupled ranges (:class:`UwbRanges`)
+    The tag antenna sits at the lever arm ``ℓ`` (body frame, ``uwb.tag_lever_arm_b_m``); anchor
+    ``i`` at ``a_i`` (origin ENU, ``uwb.anchors``). With ``C̃_b^n = (I − φ×) C_b^n``,
+    ``p̃ = p + δp`` (local level metres) and ``R_local`` the rotation from the origin's ENU axes
+    to the local level axes at the nominal point, the SINS-predicted tag is
+    ``p̃_tag = p̃ + R_localᵀ C̃ ℓ`` and the range (eq. 14) ``r̃_i = ‖p̃_tag − a_i‖``. The
+    measured range is ``ρ_i = r_i + b_i + v`` (eq. 18, with an optional per-anchor bias ``b_i``).
+    With the unit line of sight in local axes ``u = R_local (p̃_tag − a_i) / r̃_i`` and
+    ``C̃ ℓ = C ℓ + (C ℓ)× φ``, one scalar measurement per range ::
+
+        z = r̃_i − ρ_i,      H = [0, uᵀ (C̃ℓ)×, uᵀ, 0, 0, …, −1 (b_i), …],      R = σ²
+
+    Seed 004 differences the *squared* ranges (eqs. 15–20) and keeps the quadratic term of
+    eq. 22 by evaluating H at the current estimate (eq. 25). Here the range itself is the
+    measurement (its noise is the ranging noise, not ``2 r`` times it), and the same
+    "linearize at the current estimate" is exact: when the filter's estimate ``x̂`` of the
+    SINS errors is not yet fed back (several updates at one epoch, a federated local filter),
+    the range is predicted from the corrected state ``p̂ = p̃ − R_localᵀ δp̂``,
+    ``Ĉ = exp(φ̂×) C̃``, H is evaluated there, and ``z = r̂_i − ρ_i + H_nav x̂_nav`` so that the
+    innovation ``z − H x̂`` is the residual ``r̂_i + b̂_i − ρ_i`` of the corrected state.
+    The plugin adds the lever-arm (attitude) columns that seed 004's H (eq. 24) omits.
+
+    One scalar measurement per range (``epochs()`` are the ``uwb.csv`` row times), so that a
+    non-line-of-sight (NLOS) range, whose bias is large and positive, is rejected alone by the
+    engine's χ² gate (the block's ``gate_probability``) without taking the other anchors with it.
+
+    ``max_range_m``: a range whose *predicted* tag–anchor distance ``r̃_i`` exceeds it produces
+    nothing (outside the anchor's working range; seed 004 §1 uses the anchors within ~10 m).
+    The predicted rather than the measured range decides, so that an NLOS-inflated reading of
+    a near anchor still reaches the gate and is counted there.
+
+    Range bias (``range_bias: true``): one state per anchor, block ``<name>.range_bias``, the
+    bias ``b_i`` itself (m, never fed back), prior σ ``range_bias_sigma_m``; a first-order
+    Gauss–Markov process of correlation time τ whose steady σ is the prior
+    (``q = 2σ²/τ``) or, without τ, a random walk of ``range_bias_random_walk_m_rts`` (0: a
+    random constant, e.g. an antenna delay).
+
+    Adaptive noise (``adaptive_noise: variational_bayes``): the variational-Bayes step of the
+    VB-UKF that seed 004 cites (ref. 28; Särkkä & Nummenmaa, IEEE TAC 54(3), 2009) with an
+    inverse-gamma ``R_i ~ IG(α_i, β_i)`` per anchor, applied to the scalar range update.
+    Between two ranges of the anchor, Δt apart, the statistics are forgotten with
+    ``ρ = exp(−Δt/τ)`` (``τ = adaptive_window_s``): ``α⁻ = ρα``, ``β⁻ = ρβ``. At a range
+    with prior innovation ``ν = z − H x̂`` and ``s = H P Hᵀ`` the fixed point ::
+
+        R ← β/α,   α = α⁻ + ½,   β = β⁻ + ½ ν² R²/(s + R)² + ½ s R/(s + R)
+
+    (the posterior residual and the posterior variance of ``H x`` of the scalar Kalman update
+    with this R) is iterated three times and the resulting R is the one returned. The prior
+    ``β₀/α₀ = sigma_range_m²`` weighs as much as one window of ranges (``α₀ = ½ n`` with
+    ``n = uwb.rate_hz · τ``, the steady-state weight). VB is used rather than a sliding-window
+    innovation estimate because it needs no stored window, its weight decays smoothly with
+    time (dropouts and rate changes are handled by Δt), and it stays positive by construction
+    (a window estimate ``mean(ν²) − H P Hᵀ`` can go negative). An adaptive R cannot tell a
+    larger noise from an NLOS bias, so an innovation whose NIS under the prior ``R = β⁻/α⁻``
+    exceeds the χ² quantile ``adaptive_screen_probability`` does not teach R (it is returned
+    with the prior R, for the engine's gate to reject); set it equal to the block's
+    ``gate_probability`` so that the plugin learns exactly from the ranges the engine accepts.
+    The plugin keeps these statistics between calls, so one instance serves one filter run
+    with its epochs in time order.
+
+UWB-only least squares (:func:`least_squares_solution`)
+    The baseline of seed 004's "UWB-only" solution. The ranges are grouped in consecutive
+    windows of ``window_s`` (default 0.25 s, ten rounds of four anchors at 40 Hz); in a window
+    the tag is taken at rest at its position ``p`` at the mean range time and Gauss–Newton
+    minimizes ::
+
+        Σ_k (ρ_k − ‖p − a_k‖)² / σ²      (+ (p_u − u_ref)² / σ_h²)
+
+    from the previous window's fix (the first from meta.yaml's initial state). For a steady
+    motion the fit refers to the mean time, except that the anchors are ranged at staggered
+    times within a round: at 4 m/min and 40 Hz rounds their ranges refer to points ≤ 1.3 mm
+    apart along the track, a few millimetres after the geometry's amplification — far below
+    the ranging noise (estimating a velocity per window instead is hopeless far from the
+    anchors: over 0.25 s its σ reaches metres per second). The covariance of ``p`` is
+    ``(JᵀR⁻¹J)⁻¹`` at the solution (σ as configured, not rescaled by the residuals); the
+    velocity is the slope of a line through the fixes within ``±velocity_span_s/2``.
+
+    Vertical: anchors at nearly one height determine the tag height poorly far from them
+    (seed 004 §3.2 reports its larger z error for that reason), and a tag below the anchors
+    has a mirror solution above them. Gauss–Newton starts from the previous fix, which keeps
+    it on the physical side while σ_u is well below the tag's depth under the anchors; far
+    from them (σ_u ≈ 0.4 m at 14 m in ``seed004-face-end``) a fix can still fall towards the
+    anchors' plane, and its σ_u from ``(JᵀR⁻¹J)⁻¹`` says how poorly the height is determined.
+    Optionally (``height_sigma_m``) a height constraint — the tag height of meta.yaml's
+    initial state with that σ — is one more row: for a machine known to stay near one
+    height. It is applied only when configured, never silently.
+
+    A window with fewer than ``min_anchors`` distinct anchors, a singular normal matrix or no
+    convergence gives no fix. The IMU point is the tag minus ``R_localᵀ C ℓ`` with the
+    attitude of meta.yaml's initial state (UWB does not observe attitude; the solution
+    carries that attitude, constant). No outlier rejection: NLOS ranges enter the fit.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Literal
+
+import numpy as np
+import scipy.linalg
+from numpy.typing import NDArray
+from pydantic import BaseModel, ConfigDict, Field, model_validator
+
+from fusion.attitude import dcm_from_euler, dcm_from_quat, quat_from_rotvec
+from fusion.earth import LocalFrame, ecef_to_enu_matrix
+from fusion.error_model import ATTITUDE, POSITION, StateBlock
+from fusion.kalman import chi2_threshold
+from fusion.plugin import Measurement, MeasurementContext, Plugin, PluginOptions
+from fusion.recording import Recording, UwbData, UwbMeta
+from fusion.solution import Solution
+
+VB_ITERATIONS = 3
+"""Fixed-point iterations of the variational-Bayes noise update (converges in 2–3)."""
+
+
+class UwbOptions(PluginOptions):
+    """Options of the tightly coupled UWB range plugin."""
+
+    sigma_range_m: float = Field(
+        0.05, gt=0, description="ranging noise 1σ (seed 004 §3.2: 2–5 cm underground)"
+    )
+    max_range_m: float | None = Field(
+        None, gt=0, description="anchors predicted farther than this produce nothing"
+    )
+    range_bias: bool = Field(False, description="one bias state per anchor")
+    range_bias_sigma_m: float = Field(0.1, gt=0, description="prior σ of each range bias")
+    range_bias_correlation_time_s: float | None = Field(
+        None, gt=0, description="Gauss–Markov τ (steady σ = prior σ); None: random walk"
+    )
+    range_bias_random_walk_m_rts: float = Field(
+        0.0, ge=0, description="random-walk density (m/√s) when no correlation time is given"
+    )
+    adaptive_noise: Literal["off", "variational_bayes"] = "off"
+    adaptive_window_s: float = Field(3.0, gt=0, description="VB forgetting time constant τ")
+    adaptive_screen_probability: float = Field(
+        0.999, gt=0, lt=1, description="χ² quantile beyond which a range does not teach R"
+    )
+
+    @model_validator(mode="after")
+    def _one_bias_process(self) -> UwbOptions:
+        if self.range_bias_correlation_time_s is not None and self.range_bias_random_walk_m_rts:
+            raise ValueError(
+                "range_bias_correlation_time_s and range_bias_random_walk_m_rts are exclusive:"
+                " a Gauss–Markov bias takes its noise from its prior σ and τ"
+            )
+        return self
+
+
+def _uwb_stream(recording: Recording, who: str) -> tuple[UwbData, UwbMeta]:
+    """The recording's ranges and their meta section, or a clear error."""
+    if recording.uwb is None or recording.meta.uwb is None:
+        raise ValueError(f"{who} needs uwb.csv and the uwb section of meta.yaml in the recording")
+    return recording.uwb, recording.meta.uwb
+
+
+class UwbRanges(Plugin):
+    """Ranges to surveyed UWB anchors, one scalar update per range (see the module docstring)."""
+
+    Options = UwbOptions
+    options: UwbOptions
+
+    def __init__(self, name: str, options: UwbOptions, recording: Recording) -> None:
+        super().__init__(name, options, recording)
+        self.data, meta = _uwb_stream(recording, f"plugin {name!r}")
+        self.anchors = np.array([meta.anchors[a] for a in self.data.anchor_ids], dtype=float)
+        self.lever_arm = np.array(meta.tag_lever_arm_b_m, dtype=float)
+        self.bias_block = f"{name}.range_bias"
+        n = len(self.data.anchor_ids)
+        self.adaptive = options.adaptive_noise == "variational_bayes"
+        # Inverse-gamma statistics per anchor; the prior weighs one window of ranges.
+        self._alpha0 = 0.5 * max(meta.rate_hz * options.adaptive_window_s, 1.0)
+        self.alpha = np.full(n, self._alpha0)
+        self.beta = self.alpha * options.sigma_range_m**2
+        self.t_last = np.full(n, np.nan)
+        self._screen = chi2_threshold(1, options.adaptive_screen_probability)
+
+    def state_blocks(self) -> tuple[StateBlock, ...]:
+        """One range bias per anchor when ``range_bias`` is on."""
+        if not self.options.range_bias:
+            return ()
+        o = self.options
+        n = len(self.data.anchor_ids)
+        tau = o.range_bias_correlation_time_s
+        density = 2.0 * o.range_bias_sigma_m**2 / tau if tau else o.range_bias_random_walk_m_rts**2
+        return (
+            StateBlock(
+                self.bias_block,
+                tuple(self.data.anchor_ids),
+                (o.range_bias_sigma_m,) * n,
+                (density,) * n,
+                tau,
+            ),
+        )
+
+    def epochs(self) -> NDArray[np.float64]:
+        """The range times (one epoch per ``uwb.csv`` row)."""
+        return self.data.t
+
+    def noise_sigma(self) -> NDArray[np.float64]:
+        """Current range-noise σ per anchor (m): the configured one, or the learned one."""
+        return np.sqrt(self.beta / self.alpha)
+
+    def measure(self, index: int, ctx: MeasurementContext) -> Measurement | None:
+        """Residual of the predicted range against row ``index``, linearized at the estimate."""
+        k = int(self.data.anchor_index[index])
+        layout = ctx.layout
+        att, pos = layout.slice(ATTITUDE), layout.slice(POSITION)
+        rot = ecef_to_enu_matrix(ctx.lat, ctx.lon) @ ctx.frame.c_e_n.T  # origin ENU → local
+        x_att, x_pos = ctx.x[att], ctx.x[pos]
+        position = ctx.position_enu
+        c_b_n = ctx.c_b_n
+        corrected = bool(np.any(x_att) or np.any(x_pos))
+        if corrected:  # linearize at the estimate: the SINS state corrected by x̂
+            position = position - rot.T @ x_pos
+            c_b_n = dcm_from_quat(quat_from_rotvec(x_att)) @ c_b_n
+        arm_n = c_b_n @ self.lever_arm
+        line = rot @ (position - self.anchors[k]) + arm_n
+        predicted = math.sqrt(float(line @ line))
+        if self.options.max_range_m is not None and predicted > self.options.max_range_m:
+            return None
+        u = line / predicted
+        h = np.zeros(layout.dim)
+        h[att] = (  # uᵀ (C̃ℓ)× φ = (u × C̃ℓ) · φ
+            u[1] * arm_n[2] - u[2] * arm_n[1],
+            u[2] * arm_n[0] - u[0] * arm_n[2],
+            u[0] * arm_n[1] - u[1] * arm_n[0],
+        )
+        h[pos] = u
+        z = predicted - float(self.data.range[index])
+        if corrected:
+            z += float(h[att] @ x_att + h[pos] @ x_pos)
+        if self.options.range_bias:
+            h[layout.slice(self.bias_block).start + k] = -1.0
+        variance = self._variance(k, ctx, z, h)
+        return Measurement(np.array([z]), h[None, :], np.array([[variance]]))
+
+    def _variance(self, k: int, ctx: MeasurementContext, z: float, h: NDArray[np.float64]) -> float:
+        """R of anchor ``k``: fixed, or the variational-Bayes update (module docstring)."""
+        if not self.adaptive:
+            return self.options.sigma_range_m**2
+        if np.isfinite(self.t_last[k]):
+            forget = math.exp(-(ctx.t - self.t_last[k]) / self.options.adaptive_window_s)
+            self.alpha[k] *= forget
+            self.beta[k] *= forget
+        self.t_last[k] = ctx.t
+        nu = z - float(h @ ctx.x)
+        s = float(h @ ctx.covariance @ h)
+        r = self.beta[k] / self.alpha[k]
+        if nu * nu / (s + r) > self._screen:
+            return r
+        alpha = self.alpha[k] + 0.5
+        beta = self.beta[k]
+        for _ in range(VB_ITERATIONS):
+            gain = r / (s + r)
+            beta = self.beta[k] + 0.5 * (nu * gain) ** 2 + 0.5 * s * gain
+            r = beta / alpha
+        self.alpha[k], self.beta[k] = alpha, beta
+        return r
+
+
+class LeastSquaresOptions(BaseModel):
+    """Options of the UWB-only least-squares baseline (see the module docstring)."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    sigma_range_m: float = Field(0.05, gt=0, description="ranging noise 1σ")
+    window_s: float = Field(0.25, gt=0, description="ranges fitted together per fix")
+    max_range_m: float | None = Field(None, gt=0, description="longer ranges are not used")
+    min_anchors: int = Field(3, ge=3, description="distinct anchors needed in a window")
+    height_sigma_m: float | None = Field(
+        None, gt=0, description="σ of the optional height constraint (None: none)"
+    )
+    velocity_span_s: float = Field(2.0, gt=0, description="fixes regressed for the velocity")
+    max_iterations: int = Field(20, ge=1, description="Gauss–Newton iterations per window")
+    tolerance_m: float = Field(1e-4, gt=0, description="Gauss–Newton convergence step")
+
+
+def _gauss_newton(
+    anchors: NDArray[np.float64],
+    ranges: NDArray[np.float64],
+    start: NDArray[np.float64],
+    height: tuple[float, float] | None,
+    options: LeastSquaresOptions,
+) -> tuple[NDArray[np.float64], NDArray[np.float64]] | None:
+    """Solve one window for the tag position; return it and its covariance, or None."""
+    p = start.copy()
+    weight = 1.0 / options.sigma_range_m**2
+    for _ in range(options.max_iterations):
+        line = p - anchors
+        dist = np.linalg.norm(line, axis=1)
+        u = line / dist[:, None]
+        normal = weight * u.T @ u
+        rhs = weight * u.T @ (ranges - dist)
+        if height is not None:
+            ref, sigma = height
+            normal[2, 2] += 1.0 / sigma**2
+            rhs[2] += (ref - p[2]) / sigma**2
+        try:
+            factor = scipy.linalg.cho_factor(normal, check_finite=False)
+        except np.linalg.LinAlgError:
+            return None
+        step = scipy.linalg.cho_solve(factor, rhs, check_finite=False)
+        p = p + step
+        if np.linalg.norm(step) < options.tolerance_m:
+            return p, scipy.linalg.cho_solve(factor, np.eye(3), check_finite=False)
+    return None
+
+
+def _local_slope(
+    t: NDArray[np.float64], values: NDArray[np.float64], span: float
+) -> NDArray[np.float64]:
+    """Slope of the least-squares line through the samples within ``±span/2`` of each time."""
+    lo = np.searchsorted(t, t - 0.5 * span, side="left")
+    hi = np.searchsorted(t, t + 0.5 * span, side="right")
+    tc = t - t[0]  # keep the sums well conditioned
+
+    def window_sum(x: NDArray[np.float64]) -> NDArray[np.float64]:
+        c = np.concatenate([np.zeros((1, *x.shape[1:])), np.cumsum(x, axis=0)])
+        return c[hi] - c[lo]
+
+    n = (hi - lo).astype(float)
+    st, stt = window_sum(tc), window_sum(tc * tc)
+    sp, stp = window_sum(values), window_sum(tc[:, None] * values)
+    denom = n * stt - st * st
+    with np.errstate(invalid="ignore", divide="ignore"):
+        slope = (n[:, None] * stp - st[:, None] * sp) / denom[:, None]
+    return np.where(denom[:, None] > 0, slope, 0.0)
+
+
+def least_squares_solution(
+    recording: Recording, options: LeastSquaresOptions | None = None
+) -> Solution:
+    """UWB-only Gauss–Newton fixes of the IMU point, one per window of ranges.
+
+    Parameters
+    ----------
+    recording
+        A recording with ``uwb.csv`` (the IMU stream is not used).
+    options
+        Noise, window, constraints (defaults: :class:`LeastSquaresOptions`).
+
+    Returns
+    -------
+    Solution
+        One epoch per window that gives a fix (at the window's mean range time): IMU-point
+        position, the velocity regressed over ``velocity_span_s`` of fixes, meta.yaml's initial
+        attitude (constant), the position σ and covariance from ``(JᵀR⁻¹J)⁻¹``.
+
+    Raises
+    ------
+    ValueError
+        When the recording has no UWB stream or no window gives a fix.
+    """
+    opts = LeastSquaresOptions() if options is None else options
+    data, meta = _uwb_stream(recording, "the UWB least-squares solution")
+    init = recording.meta.initial
+    origin = recording.meta.origin
+    frame = LocalFrame(origin.lat_deg, origin.lon_deg, origin.height_m)
+    lat, lon, _ = frame.to_geodetic(np.asarray(init.position_enu_m, dtype=float))
+    rot = frame.rotation_to_local(lat, lon)
+    euler = np.deg2rad([init.attitude_deg.roll, init.attitude_deg.pitch, init.attitude_deg.yaw])
+    arm_enu = rot.T @ dcm_from_euler(*euler) @ np.array(meta.tag_lever_arm_b_m, dtype=float)
+    tag = np.asarray(init.position_enu_m, dtype=float) + arm_enu
+    height = None if opts.height_sigma_m is None else (float(tag[2]), opts.height_sigma_m)
+    anchors = np.array([meta.anchors[a] for a in data.anchor_ids], dtype=float)
+
+    keep = np.ones(data.t.size, dtype=bool)
+    if opts.max_range_m is not None:
+        keep = data.range <= opts.max_range_m
+    t, index, ranges = data.t[keep], data.anchor_index[keep], data.range[keep]
+    window = np.floor((t - data.t[0]) / opts.window_s).astype(np.int64)
+    out_t, out_p, out_cov = [], [], []
+    for sel in np.split(np.arange(t.size), np.flatnonzero(np.diff(window)) + 1):
+        if np.unique(index[sel]).size < opts.min_anchors:
+            continue
+        fix = _gauss_newton(anchors[index[sel]], ranges[sel], tag, height, opts)
+        if fix is None:
+            continue
+        tag, cov = fix
+        out_t.append(float(np.mean(t[sel])))
+        out_p.append(tag)
+        out_cov.append(cov)
+    if not out_t:
+        raise ValueError(
+            f"UWB least squares: no window of {opts.window_s} s of uwb.csv in"
+            f" {recording.meta.name!r} holds ranges to {opts.min_anchors} anchors with a"
+            " converged fix; widen window_s or lower min_anchors"
+        )
+    times = np.array(out_t)
+    tags = np.array(out_p)
+    cov = np.array(out_cov)
+    return Solution(
+        t=times,
+        position=tags - arm_enu,
+        velocity=_local_slope(times, tags, opts.velocity_span_s),
+        attitude=np.tile(euler, (times.size, 1)),
+        sigma_position=np.sqrt(np.diagonal(cov, axis1=1, axis2=2)),
+        position_covariance=cov,
+    )

@@ -1,0 +1,515 @@
+"""UWB ranges (tightly coupled) and the UWB-only least-squares baseline.
+
+* H against numerical differentiation of the full range model through a perturbed SINS state
+  and the range-bias states; the innovation vanishes when the estimate equals the true error.
+* Monte Carlo over 20 seeded short runs of ``seed004-face-end`` (the last 2 m before the face
+  end, 2 s static at each end; ~40 s of 160 ranges/s each, so ~1 min: marked slow): whitened
+  innovations, RMS(err/σ) of position, velocity and attitude, and the face-end position error
+  of SINS + UWB against UWB-only least squares.
+* NLOS gating on a ``uwb_nlos`` fault, the variational-Bayes adaptive noise, the range-bias
+  states, and the least-squares baseline on a noiseless recording.
+
+The filter's IMU tuning is the MTi-G-700 datasheet of the simulator (``fusion.sim.sensors``,
+grade ``mti-g-700``), entered as in ``configs/sins_uwb.yaml``; the ranging σ is the scenario's
+3 cm unless a test says otherwise.
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from fusion.attitude import dcm_from_euler
+from fusion.config import load_config, parse_config
+from fusion.engine import Engine, RunResult
+from fusion.metrics import interpolate_truth
+from fusion.plugin import Measurement, MeasurementContext, PluginError, create_plugin
+from fusion.recording import ImuData, Recording, RecordingMeta, UwbData, read_recording
+from fusion.sim.simulate import simulate
+from fusion.solution import Solution
+from plugins.uwb import LeastSquaresOptions, UwbOptions, UwbRanges, least_squares_solution
+from tests.plugin_support import FRAME, layout_with, numerical_jacobian, perturbed_context
+
+ROOT = Path(__file__).resolve().parents[1]
+SIGMA_RANGE = 0.03
+"""Ranging noise of the seed004-face-end scenario (its ``uwb.noise_sigma_m``)."""
+IMU_TUNING = {
+    "gyro_bias_instability_deg_h": 1620.0,
+    "accel_bias_instability_mg": 6.5,
+    "bias_correlation_time_s": 1.0e6,
+}
+FACE_LENGTH = 2.0
+# seed004-face-end's anchors (face coordinates: along, right, height) for its 10 m face; the
+# short runs keep their position relative to the face end.
+ANCHORS = {
+    "A1": (14.352, 1.251, 1.249),
+    "A2": (11.0, 0.0, 1.5),
+    "A3": (13.375, -0.110, 1.811),
+    "A4": (13.758, -1.223, 1.849),
+}
+SHORT_RUN = [
+    "static_start_s=2",
+    "static_end_s=2",
+    f"face.length_m={FACE_LENGTH}",
+    *(f"uwb.anchors.{k}=[{a - 10.0 + FACE_LENGTH}, {r}, {h}]" for k, (a, r, h) in ANCHORS.items()),
+]
+N_SEEDS = 20
+
+
+# --------------------------------------------------------------------------------------------
+# measurement model
+
+
+def _recording(
+    anchors: dict[str, tuple[float, float, float]],
+    lever_arm: tuple[float, float, float],
+    ranges: list[tuple[str, float]],
+    *,
+    with_uwb: bool = True,
+) -> Recording:
+    """An in-memory recording whose ``uwb.csv`` holds ``ranges`` at t = 0.5, 0.51, …"""
+    meta: dict[str, Any] = {
+        "format": "shearer-recording/1",
+        "origin": {"lat_deg": 34.0, "lon_deg": 117.0, "height_m": 40.0},
+        "initial": {
+            "position_enu_m": [0, 0, 0],
+            "velocity_enu_mps": [0, 0, 0],
+            "attitude_deg": {"roll": 0, "pitch": 0, "yaw": 0},
+            "sigma": {"position_m": [1] * 3, "velocity_mps": [1] * 3, "attitude_deg": [1] * 3},
+        },
+        "imu": {"rate_hz": 100.0},
+    }
+    if with_uwb:
+        meta["uwb"] = {"rate_hz": 40.0, "tag_lever_arm_b_m": list(lever_arm), "anchors": anchors}
+    t = np.arange(0.0, 1.0, 0.01)
+    ids = tuple(anchors)
+    uwb = UwbData(
+        t=0.5 + 0.01 * np.arange(len(ranges)),
+        anchor_index=np.array([ids.index(a) for a, _ in ranges]),
+        range=np.array([r for _, r in ranges]),
+        anchor_ids=ids,
+    )
+    return Recording(
+        path=None,
+        meta=RecordingMeta.model_validate(meta),
+        imu=ImuData(t=t, gyro=np.zeros((t.size, 3)), accel=np.zeros((t.size, 3))),
+        uwb=uwb if with_uwb else None,
+    )
+
+
+ANCHORS_ENU = {"A1": (41.0, -9.0, 5.5), "A2": (30.0, -15.0, 4.0), "A3": (38.0, -20.0, 6.0)}
+LEVER_ARM = (0.4, -1.2, 0.8)
+C_B_N = dcm_from_euler(0.05, -0.03, 2.1)
+P_TRUE = np.array([35.0, -12.0, 3.0])
+TRUE_BIAS = np.array([0.05, -0.02, 0.12])
+
+
+def _true_tag() -> np.ndarray:
+    # The attitude is relative to the local level axes at the point, the anchors in the origin's.
+    rot = FRAME.rotation_to_local(*FRAME.to_geodetic(P_TRUE)[:2])
+    return P_TRUE + rot.T @ C_B_N @ np.array(LEVER_ARM)
+
+
+def _bias_plugin(bias: np.ndarray) -> UwbRanges:
+    """Ranges of the true tag to each anchor, each carrying the anchor's true bias."""
+    tag = _true_tag()
+    ranges = [
+        (a, float(np.linalg.norm(tag - np.array(p))) + b)
+        for (a, p), b in zip(ANCHORS_ENU.items(), bias, strict=True)
+    ]
+    rec = _recording(ANCHORS_ENU, LEVER_ARM, ranges)
+    return UwbRanges("uwb", UwbOptions(range_bias=True), rec)
+
+
+def test_h_matches_numerical_differentiation() -> None:
+    """z = 0 at the truth, and z(δx) ≈ H δx around it for the SINS and the bias states.
+
+    The bias states are parameters of the truth (the measured range carries ``b``), so the
+    numerical column of bias i differentiates a recording whose range i carries ``b_i + δb_i``.
+    """
+    layout = layout_with(_bias_plugin(TRUE_BIAS).state_blocks())
+    bias_slice = layout.slice("uwb.range_bias")
+
+    for k in range(len(ANCHORS_ENU)):
+
+        def residual(dx: np.ndarray, k: int = k) -> np.ndarray:
+            plugin = _bias_plugin(TRUE_BIAS + dx[bias_slice])
+            x = np.zeros(layout.dim)
+            x[bias_slice] = TRUE_BIAS  # the filter knows the biases; they enter z − H x
+            ctx = perturbed_context(layout, dx, position_enu=P_TRUE, c_b_n=C_B_N, x=x)
+            m = plugin.measure(k, ctx)
+            assert m is not None
+            return m.z - m.H @ x
+
+        np.testing.assert_allclose(residual(np.zeros(layout.dim)), 0.0, atol=1e-9)
+        steps = np.array([1e-3] * 3 + [1e-5] * 3 + [1e-2] * 3 + [0.0] * 6 + [1e-3] * 3)
+        numeric = numerical_jacobian(residual, layout.dim, steps)
+        ctx = perturbed_context(layout, np.zeros(layout.dim), position_enu=P_TRUE, c_b_n=C_B_N)
+        m = _bias_plugin(TRUE_BIAS).measure(k, ctx)
+        assert m is not None and m.H.shape == (1, layout.dim)
+        # δp is applied along the origin's ENU axes, which differ from the local axes at 38 m
+        # by 6e-6 rad: the only mismatch allowed.
+        np.testing.assert_allclose(m.H, numeric, atol=1e-5, err_msg=f"anchor {k}")
+        assert m.H[0, bias_slice.start + k] == -1.0
+        assert np.count_nonzero(m.H[0, bias_slice]) == 1
+
+
+def test_linearized_at_the_estimate() -> None:
+    """With SINS errors not yet fed back (x̂ ≠ 0), the innovation z − H x̂ is the residual of
+    the corrected state: zero when x̂ is the true error, however large (seed 004 eq. 25)."""
+    layout = layout_with(_bias_plugin(TRUE_BIAS).state_blocks())
+    dx = np.zeros(layout.dim)
+    dx[0:9] = [0.1, -0.2, 0.05, 0.03, -0.02, 0.3, 0.8, -0.5, 0.4]  # 17°, 0.8 m: far from linear
+    dx[layout.slice("uwb.range_bias")] = TRUE_BIAS
+    ctx = perturbed_context(layout, dx, position_enu=P_TRUE, c_b_n=C_B_N, x=dx)
+    plugin = _bias_plugin(TRUE_BIAS)
+    for k in range(len(ANCHORS_ENU)):
+        m = plugin.measure(k, ctx)
+        assert m is not None
+        np.testing.assert_allclose(m.z - m.H @ dx, 0.0, atol=2e-5)
+
+
+def test_max_range_produces_nothing() -> None:
+    """An anchor predicted farther than max_range_m gives no measurement; nearer ones do."""
+    tag = _true_tag()
+    dist = {a: float(np.linalg.norm(tag - np.array(p))) for a, p in ANCHORS_ENU.items()}
+    rec = _recording(ANCHORS_ENU, LEVER_ARM, [(a, d) for a, d in dist.items()])
+    _, middle, far = sorted(dist.values())
+    limit = 0.5 * (middle + far)
+    plugin = UwbRanges("uwb", UwbOptions(max_range_m=limit), rec)
+    layout = layout_with(plugin.state_blocks())
+    ctx = perturbed_context(layout, np.zeros(layout.dim), position_enu=P_TRUE, c_b_n=C_B_N)
+    got = {a: plugin.measure(k, ctx) for k, a in enumerate(ANCHORS_ENU)}
+    for a, m in got.items():
+        assert (m is None) == (dist[a] > limit), a
+        assert m is None or isinstance(m, Measurement)
+
+
+def test_bad_input_is_named() -> None:
+    """A recording without uwb.csv and contradictory bias options are clear errors."""
+    rec = _recording(ANCHORS_ENU, LEVER_ARM, [("A1", 10.0)], with_uwb=False)
+    with pytest.raises(ValueError, match=r"plugin 'uwb' needs uwb\.csv"):
+        UwbRanges("uwb", UwbOptions(), rec)
+    with pytest.raises(PluginError, match="range_bias_random_walk_m_rts"):
+        create_plugin(
+            "uwb",
+            "uwb",
+            {"range_bias_correlation_time_s": 60.0, "range_bias_random_walk_m_rts": 1e-3},
+            _recording(ANCHORS_ENU, LEVER_ARM, [("A1", 10.0)]),
+            ("plugins", 0),
+        )
+
+
+def test_variational_bayes_learns_the_range_noise() -> None:
+    """Ranges of 0.1 m noise from a 0.03 m prior: the VB estimate of that anchor converges to
+    0.1 m (with H P Hᵀ = 0 the innovation is the range noise); an outlier beyond the screen
+    leaves it unchanged and is returned with the learned R; the other anchors keep the prior."""
+    rng = np.random.default_rng(4)
+    true_range = float(np.linalg.norm(_true_tag() - np.array(ANCHORS_ENU["A1"])))
+    noisy = true_range + 0.1 * rng.standard_normal(4000)  # 40 s of 0.01 s rows
+    ranges = [("A1", float(r)) for r in noisy] + [("A1", true_range + 2.0)]
+    rec = _recording(ANCHORS_ENU, LEVER_ARM, ranges)
+    assert rec.uwb is not None
+    opts = UwbOptions(sigma_range_m=0.03, adaptive_noise="variational_bayes", adaptive_window_s=5)
+    plugin = UwbRanges("uwb", opts, rec)
+    layout = layout_with(plugin.state_blocks())
+    ctx = perturbed_context(
+        layout,
+        np.zeros(layout.dim),
+        position_enu=P_TRUE,
+        c_b_n=C_B_N,
+        covariance=np.zeros((layout.dim, layout.dim)),
+    )
+    for i in range(noisy.size):
+        plugin.measure(i, replace(ctx, t=float(rec.uwb.t[i])))
+    learned = plugin.noise_sigma()[0]
+    assert 0.09 < learned < 0.11, learned
+    outlier = plugin.measure(noisy.size, replace(ctx, t=float(rec.uwb.t[-1])))
+    assert outlier is not None
+    assert outlier.R[0, 0] == pytest.approx(learned**2)
+    assert plugin.noise_sigma()[0] == pytest.approx(learned, rel=0.01)
+    np.testing.assert_allclose(plugin.noise_sigma()[1:], 0.03)
+
+
+# --------------------------------------------------------------------------------------------
+# simulated runs
+
+
+def _short_run(root: Path, seed: int, extra: tuple[str, ...] = ()) -> Recording:
+    out = simulate(
+        "seed004-face-end", root / f"seed{seed}", seed=seed, overrides=[*SHORT_RUN, *extra]
+    )
+    return read_recording(out)
+
+
+def _config(**plugin: Any) -> Any:
+    block = {"type": "uwb", "sigma_range_m": SIGMA_RANGE, **plugin}
+    return parse_config({"name": "sins_uwb_test", "imu": IMU_TUNING, "plugins": [block]})
+
+
+def _errors(solution: Solution, recording: Recording) -> tuple[np.ndarray, np.ndarray]:
+    """Position error (m) and its σ at the solution epochs inside the truth span."""
+    assert recording.truth is not None
+    inside, position, *_ = interpolate_truth(recording.truth, solution.t)
+    return solution.position[inside] - position, solution.sigma_position[inside]
+
+
+def _run_probed(recording: Recording, config: Any, every: int = 40) -> tuple[RunResult, np.ndarray]:
+    """Run the engine and collect err/σ of velocity, attitude, position every ``every`` ranges.
+
+    The UWB plugin's context at its epochs is the filter's prior: the nominal SINS state
+    (errors fed back, x = 0) and the covariance before the update.
+    """
+    assert recording.truth is not None
+    engine = Engine(config, recording)
+    plugin = engine.plugins[0]
+    measure = plugin.measure
+    samples: list[tuple[float, np.ndarray, np.ndarray, np.ndarray, np.ndarray]] = []
+
+    def probed(index: int, ctx: MeasurementContext) -> Measurement | None:
+        if index % every == 0:
+            sigma = np.sqrt(np.diag(ctx.covariance)[:9])
+            state = (ctx.velocity.copy(), ctx.c_b_n.copy(), ctx.position_enu.copy())
+            samples.append((ctx.t, *state, sigma))
+        return measure(index, ctx)
+
+    plugin.measure = probed  # type: ignore[method-assign]
+    result = engine.run()
+    t = np.array([s[0] for s in samples])
+    inside, position, velocity, attitude, _ = interpolate_truth(recording.truth, t)
+    assert inside.all()
+    ratios = []
+    for k, (_, v, c_b_n, p, sigma) in enumerate(samples):
+        phi = -Rotation.from_matrix(c_b_n @ dcm_from_euler(*attitude[k]).T).as_rotvec()
+        ratios.append(np.concatenate([v - velocity[k], phi, p - position[k]]) / sigma)
+    return result, np.array(ratios)
+
+
+@pytest.fixture(scope="module")
+def monte_carlo(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Any]:
+    """20 seeded short face-end runs: SINS + UWB (fixed σ) and UWB-only least squares."""
+    root = tmp_path_factory.mktemp("uwb_mc")
+    config = _config()
+    ratios, whitened, fused, fused_sigma, ls, ls_sigma = [], [], [], [], [], []
+    for seed in range(N_SEEDS):
+        rec = _short_run(root, seed)
+        result, r = _run_probed(rec, config)
+        ratios.append(r)
+        whitened.append(result.innovations["uwb"].whitened_rms())
+        err, sig = _errors(result.solution, rec)
+        fused.append(err)
+        fused_sigma.append(sig)
+        err, sig = _errors(
+            least_squares_solution(rec, LeastSquaresOptions(sigma_range_m=0.03)), rec
+        )
+        ls.append(err)
+        ls_sigma.append(sig)
+    return {
+        "ratios": np.concatenate(ratios),
+        "whitened": np.array(whitened),
+        "fused": np.concatenate(fused),
+        "fused_sigma": np.concatenate(fused_sigma),
+        "ls": np.concatenate(ls),
+        "ls_sigma": np.concatenate(ls_sigma),
+    }
+
+
+@pytest.mark.slow
+def test_monte_carlo_consistency(monte_carlo: dict[str, Any]) -> None:
+    """Whitened innovations RMS in [0.7, 1.3] per run; RMS(err/σ) < 1.5 per state group."""
+    whitened = monte_carlo["whitened"]
+    r = monte_carlo["ratios"]
+    groups = {"velocity": r[:, 0:3], "attitude": r[:, 3:6], "position": r[:, 6:9]}
+    rms = {g: float(np.sqrt(np.mean(v**2))) for g, v in groups.items()}
+    print("whitened RMS per run:", np.round(whitened, 3))
+    print("RMS(err/σ):", {g: round(v, 3) for g, v in rms.items()})
+    print("per state:", np.round(np.sqrt(np.mean(r**2, axis=0)), 2))
+    assert np.all((whitened >= 0.7) & (whitened <= 1.3)), whitened
+    for group, value in rms.items():
+        assert value < 1.5, (group, value)
+        assert value > 0.5, (group, value)  # σ not grossly pessimistic either
+
+
+@pytest.mark.slow
+def test_fused_beats_uwb_only_least_squares(monte_carlo: dict[str, Any]) -> None:
+    """Seed 004 §3: IMU/UWB has a smaller face-end error than UWB alone, across the face (n,
+    the seed's x) and vertically (u, the seed's z), and in 3-D; the LS σ is honest."""
+    fused, ls = monte_carlo["fused"], monte_carlo["ls"]
+    mean_fused, mean_ls = np.mean(np.abs(fused), axis=0), np.mean(np.abs(ls), axis=0)
+    rms_fused = float(np.sqrt(np.mean(np.sum(fused**2, axis=1))))
+    rms_ls = float(np.sqrt(np.mean(np.sum(ls**2, axis=1))))
+    ls_ratio = np.sqrt(np.mean((ls / monte_carlo["ls_sigma"]) ** 2, axis=0))
+    print("mean |err| e/n/u fused:", np.round(mean_fused, 4), "LS:", np.round(mean_ls, 4))
+    print("3-D RMS fused:", round(rms_fused, 4), "LS:", round(rms_ls, 4))
+    print("LS RMS(err/σ) e/n/u:", np.round(ls_ratio, 3))
+    assert np.all(mean_fused < mean_ls)
+    assert rms_fused < 0.8 * rms_ls
+    assert np.all((ls_ratio > 0.8) & (ls_ratio < 1.25)), ls_ratio
+
+
+@pytest.fixture(scope="module")
+def nlos_recording(tmp_path_factory: pytest.TempPathFactory) -> Recording:
+    """A short run whose nearest anchor A2 is non-line-of-sight (+0.3…1.5 m) for 10 s."""
+    fault = "faults=[{kind: uwb_nlos, t_start: 10, t_end: 20, anchors: [A2], bias_m: [0.3, 1.5]}]"
+    return _short_run(tmp_path_factory.mktemp("uwb_nlos"), 101, (fault,))
+
+
+def _nlos_rows(recording: Recording, result: RunResult) -> tuple[np.ndarray, np.ndarray]:
+    """Accepted flags of the logged ranges and whether each was inside the NLOS fault."""
+    assert recording.uwb is not None
+    log = result.innovations["uwb"]
+    t = np.array(log.t)
+    row = np.searchsorted(recording.uwb.t, t)
+    is_a2 = recording.uwb.anchor_index[row] == recording.uwb.anchor_ids.index("A2")
+    return np.array(log.accepted), is_a2 & (t >= 10.0) & (t <= 20.0)
+
+
+def test_nlos_ranges_are_gated_alone(nlos_recording: Recording) -> None:
+    """The χ² gate rejects the NLOS ranges of A2 and almost nothing else; the position stays
+    consistent. Ungated, the same ranges drag the solution by decimetres."""
+    gated = Engine(_config(gate_probability=0.999), nlos_recording).run()
+    accepted, nlos = _nlos_rows(nlos_recording, gated)
+    err, sigma = _errors(gated.solution, nlos_recording)
+    print(
+        f"rejected: NLOS {np.mean(~accepted[nlos]):.4f}, others {np.mean(~accepted[~nlos]):.5f};"
+        f" max |err| {np.round(np.max(np.abs(err), axis=0), 3)}"
+    )
+    assert nlos.sum() > 300
+    assert np.mean(~accepted[nlos]) > 0.99
+    assert np.mean(~accepted[~nlos]) < 0.005
+    assert np.sqrt(np.mean((err / sigma) ** 2)) < 1.5
+    assert 0.7 <= gated.innovations["uwb"].whitened_rms() <= 1.3
+
+    ungated = Engine(_config(), nlos_recording).run()
+    err_ungated, _ = _errors(ungated.solution, nlos_recording)
+    print(f"ungated max |err| {np.round(np.max(np.abs(err_ungated), axis=0), 3)}")
+    assert np.max(np.abs(err_ungated)) > 0.2 > np.max(np.abs(err))
+
+
+def test_adaptive_noise_is_not_taught_by_nlos(nlos_recording: Recording) -> None:
+    """With the screen equal to the gate, the NLOS anchor's learned σ stays at the true 3 cm
+    (from a 5 cm prior) while its biased ranges are rejected."""
+    config = _config(
+        gate_probability=0.999,
+        sigma_range_m=0.05,
+        adaptive_noise="variational_bayes",
+        adaptive_screen_probability=0.999,
+    )
+    engine = Engine(config, nlos_recording)
+    result = engine.run()
+    plugin = engine.plugins[0]
+    assert isinstance(plugin, UwbRanges)
+    learned = plugin.noise_sigma()
+    accepted, nlos = _nlos_rows(nlos_recording, result)
+    print("learned σ per anchor:", np.round(learned, 4))
+    np.testing.assert_allclose(learned, SIGMA_RANGE, rtol=0.15)
+    assert np.mean(~accepted[nlos]) > 0.99
+
+
+def test_adaptive_noise_learns_a_larger_noise(tmp_path_factory: pytest.TempPathFactory) -> None:
+    """Ranges of 8 cm noise, configured σ 3 cm: fixed R is inconsistent (whitened RMS > 2),
+    the variational-Bayes R learns 8 cm and restores consistency."""
+    rec = _short_run(tmp_path_factory.mktemp("uwb_noisy"), 102, ("uwb.noise_sigma_m=0.08",))
+    fixed = Engine(_config(), rec).run()
+    engine = Engine(_config(adaptive_noise="variational_bayes"), rec)
+    adaptive = engine.run()
+    plugin = engine.plugins[0]
+    assert isinstance(plugin, UwbRanges)
+    err, sigma = _errors(adaptive.solution, rec)
+    print(
+        "whitened RMS fixed:",
+        round(fixed.innovations["uwb"].whitened_rms(), 3),
+        "adaptive:",
+        round(adaptive.innovations["uwb"].whitened_rms(), 3),
+        "learned σ:",
+        np.round(plugin.noise_sigma(), 4),
+    )
+    assert fixed.innovations["uwb"].whitened_rms() > 2.0
+    assert 0.7 <= adaptive.innovations["uwb"].whitened_rms() <= 1.3
+    np.testing.assert_allclose(plugin.noise_sigma(), 0.08, rtol=0.12)
+    assert np.sqrt(np.mean((err / sigma) ** 2)) < 1.5
+
+
+def test_range_bias_states_estimate_a_persistent_bias(
+    tmp_path_factory: pytest.TempPathFactory,
+) -> None:
+    """A persistent +0.2 m bias on A3 (the whole run NLOS with a fixed excess path): the bias
+    states recover it within 3σ (the other anchors' within 3σ of zero), and the position stays
+    consistent; without them the filter is inconsistent."""
+    fault = "faults=[{kind: uwb_nlos, t_start: 0, t_end: 1000, anchors: [A3], bias_m: [0.2, 0.2]}]"
+    rec = _short_run(tmp_path_factory.mktemp("uwb_bias"), 103, (fault,))
+    result = Engine(_config(range_bias=True, range_bias_sigma_m=0.3), rec).run()
+    estimate, sigma = result.state_estimate("uwb.range_bias")
+    truth = np.array([0.0, 0.0, 0.2, 0.0])
+    err, pos_sigma = _errors(result.solution, rec)
+    print("bias estimate:", np.round(estimate, 4), "σ:", np.round(sigma, 4))
+    assert np.all(np.abs(estimate - truth) < 3 * sigma)
+    assert sigma[2] < 0.05
+    assert np.sqrt(np.mean((err / pos_sigma) ** 2)) < 1.5
+    without = Engine(_config(), rec).run()
+    assert without.innovations["uwb"].whitened_rms() > 1.5
+
+
+def test_config_file_runs_on_a_face_end_recording(tmp_path_factory: pytest.TempPathFactory) -> None:
+    """configs/sins_uwb.yaml (5 cm prior, adaptive noise, gate) on a short face-end run."""
+    rec = _short_run(tmp_path_factory.mktemp("uwb_config"), 104)
+    engine = Engine(load_config(ROOT / "configs" / "sins_uwb.yaml"), rec)
+    result = engine.run()
+    err, sigma = _errors(result.solution, rec)
+    plugin = engine.plugins[0]
+    assert isinstance(plugin, UwbRanges)
+    assert 0.7 <= result.innovations["uwb"].whitened_rms() <= 1.3
+    # The final value of a 3 s memory (~120 ranges per anchor): ±7 % statistical scatter.
+    np.testing.assert_allclose(plugin.noise_sigma(), SIGMA_RANGE, rtol=0.25)
+    assert np.sqrt(np.mean((err / sigma) ** 2)) < 1.5
+
+
+# --------------------------------------------------------------------------------------------
+# UWB-only least squares
+
+
+def test_least_squares_recovers_a_noiseless_truth(tmp_path_factory: pytest.TempPathFactory) -> None:
+    """Noiseless ranges, unperturbed initial state: the fixes are the truth at the tag to the
+    motion within a window (the anchors of a round are ranged 6.25 ms apart: ≤ 1.3 mm along
+    the track at 4 m/min, amplified by the geometry), and at the IMU to the lever-arm attitude
+    approximation (< 1 cm); velocity to 1 cm/s."""
+    rec = _short_run(
+        tmp_path_factory.mktemp("uwb_ls"),
+        105,
+        ("uwb.noise_sigma_m=0.0", "initial.perturb=false"),
+    )
+    assert rec.truth is not None and rec.meta.uwb is not None
+    sol = least_squares_solution(rec, LeastSquaresOptions(sigma_range_m=0.03))
+    inside, position, velocity, attitude, _ = interpolate_truth(rec.truth, sol.t)
+    assert inside.all() and len(sol) > 0.9 * rec.duration_s / 0.25
+    lever = np.array(rec.meta.uwb.tag_lever_arm_b_m)
+    # Local level and origin ENU axes differ by < 1e-6 rad over these 2 m: ignored.
+    true_tag = position + dcm_from_euler(*attitude.T) @ lever
+    init = rec.meta.initial.attitude_deg
+    assumed_arm = dcm_from_euler(*np.deg2rad([init.roll, init.pitch, init.yaw])) @ lever
+    np.testing.assert_allclose(sol.position + assumed_arm, true_tag, atol=5e-3)
+    np.testing.assert_allclose(sol.position, position, atol=1e-2)
+    moving = slice(20, -20)  # the regression needs a full span of fixes
+    np.testing.assert_allclose(sol.velocity[moving], velocity[moving], atol=1e-2)
+
+
+def test_least_squares_height_constraint_and_errors(
+    tmp_path_factory: pytest.TempPathFactory,
+) -> None:
+    """The optional height constraint tightens σ_u (never below its σ combined), and a
+    recording without UWB or a window too short for any fix is a clear error."""
+    rec = _short_run(tmp_path_factory.mktemp("uwb_ls_h"), 106)
+    free = least_squares_solution(rec, LeastSquaresOptions(sigma_range_m=0.03))
+    held = least_squares_solution(rec, LeastSquaresOptions(sigma_range_m=0.03, height_sigma_m=0.05))
+    assert np.all(held.sigma_position[:, 2] < free.sigma_position[:, 2])
+    assert np.all(held.sigma_position[:, 2] < 0.05)
+    no_uwb = _recording(ANCHORS_ENU, LEVER_ARM, [("A1", 1.0)], with_uwb=False)
+    with pytest.raises(ValueError, match=r"needs uwb\.csv"):
+        least_squares_solution(no_uwb)
+    with pytest.raises(ValueError, match="widen window_s"):
+        least_squares_solution(rec, LeastSquaresOptions(window_s=0.01))
