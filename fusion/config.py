@@ -84,7 +84,9 @@ class DeadReckoningOptions(_Strict):
 class FilterOptions(_Strict):
     """Options of the error-state filter (or of the filter-free dead reckoning)."""
 
-    architecture: Literal["centralized", "federated", "dead_reckoning"] = "centralized"
+    architecture: Literal["centralized", "federated", "dead_reckoning", "standalone"] = (
+        "centralized"
+    )
     federated: FederatedOptions = FederatedOptions()
     dead_reckoning: DeadReckoningOptions = DeadReckoningOptions()
     covariance_step_s: float = Field(0.1, gt=0, description="covariance propagation step")
@@ -167,6 +169,11 @@ class FusionConfig(_Strict):
             raise ValueError(
                 "filter.architecture dead_reckoning uses no plugins (it reads odometer.csv"
                 " itself; its options are filter.dead_reckoning): remove the plugins list"
+            )
+        if self.filter.architecture == "standalone" and sum(p.enabled for p in self.plugins) != 1:
+            raise ValueError(
+                "filter.architecture standalone solves from one sensor alone: enable exactly"
+                " one plugin (e.g. uwb for the UWB-only least-squares baseline)"
             )
         if self.filter.architecture == "federated" and not any(p.enabled for p in self.plugins):
             raise ValueError("filter.architecture federated needs at least one enabled plugin")

@@ -261,7 +261,9 @@ class Engine:
         imu = self.recording.imu
         cfg = self.config.filter
         if cfg.architecture == "dead_reckoning":
-            return self._dead_reckoning(wall0)
+            return self._without_filter(wall0, self._dead_reckoning())
+        if cfg.architecture == "standalone":
+            return self._without_filter(wall0, self.plugins[0].standalone_solution())
         sins = Strapdown(
             imu.t, imu.gyro, imu.accel, self.initial_state(), coning_sculling=cfg.coning_sculling
         )
@@ -389,14 +391,17 @@ class Engine:
             for plugin in self.plugins:
                 plugin.receive_smoothed(t_s[rows], enu, cov_s[rows])
 
-    def _dead_reckoning(self, wall0: float) -> RunResult:
-        solution = dead_reckon(
+    def _dead_reckoning(self) -> Solution:
+        return dead_reckon(
             self.recording,
             self.initial_state(),
             self.frame,
             self.imu_noise,
             self.config.filter.dead_reckoning,
         )
+
+    def _without_filter(self, wall0: float, solution: Solution) -> RunResult:
+        """Result of an architecture that estimates nothing (dead reckoning, standalone)."""
         return RunResult(
             solution=solution,
             layout=self.layout,

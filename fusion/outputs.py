@@ -78,7 +78,7 @@ def summary(result: RunResult, recording: Recording) -> str:
             f"faults     {actions.count(ISOLATE)} isolations, {actions.count(READMIT)} "
             "re-admissions (faults.csv)"
         )
-    estimated = result.config.filter.architecture != "dead_reckoning"
+    estimated = result.config.filter.architecture in ("centralized", "federated")
     for block in result.layout.blocks[3:] if estimated else ():
         est, sd = result.state_estimate(block.name)
         lines.append(

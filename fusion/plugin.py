@@ -29,6 +29,7 @@ from pydantic import BaseModel, ConfigDict, ValidationError
 from fusion.earth import LocalFrame
 from fusion.error_model import StateBlock, StateLayout
 from fusion.recording import Recording
+from fusion.solution import Solution
 from fusion.validation import dotted, error_lines
 
 ENTRY_POINT_GROUP = "fusion.plugins"
@@ -131,6 +132,14 @@ class Plugin(ABC):
     @abstractmethod
     def measure(self, index: int, ctx: MeasurementContext) -> Measurement | None:
         """The measurement of epoch ``index``, or ``None``."""
+
+    def standalone_solution(self) -> Solution:
+        """A solution from this sensor alone, without the SINS (``filter.architecture:
+        standalone``), e.g. UWB least squares; default: the plugin cannot do that."""
+        raise PluginError(
+            f"plugin {self.name!r} ({type(self).__name__}) has no standalone solution;"
+            " filter.architecture standalone needs one that has (e.g. uwb)"
+        )
 
     def window_ends(self) -> NDArray[np.float64]:
         """Times at which online smoothing should close a window (e.g. face ends); default none."""

@@ -116,6 +116,23 @@ VB_ITERATIONS = 3
 """Fixed-point iterations of the variational-Bayes noise update (converges in 2–3)."""
 
 
+class LeastSquaresOptions(BaseModel):
+    """Options of the UWB-only least-squares baseline (see the module docstring)."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    sigma_range_m: float = Field(0.05, gt=0, description="ranging noise 1σ")
+    window_s: float = Field(0.25, gt=0, description="ranges fitted together per fix")
+    max_range_m: float | None = Field(None, gt=0, description="longer ranges are not used")
+    min_anchors: int = Field(3, ge=3, description="distinct anchors needed in a window")
+    height_sigma_m: float | None = Field(
+        None, gt=0, description="σ of the optional height constraint (None: none)"
+    )
+    velocity_span_s: float = Field(2.0, gt=0, description="fixes regressed for the velocity")
+    max_iterations: int = Field(20, ge=1, description="Gauss–Newton iterations per window")
+    tolerance_m: float = Field(1e-4, gt=0, description="Gauss–Newton convergence step")
+
+
 class UwbOptions(PluginOptions):
     """Options of the tightly coupled UWB range plugin."""
 
@@ -137,6 +154,10 @@ class UwbOptions(PluginOptions):
     adaptive_window_s: float = Field(3.0, gt=0, description="VB forgetting time constant τ")
     adaptive_screen_probability: float = Field(
         0.999, gt=0, lt=1, description="χ² quantile beyond which a range does not teach R"
+    )
+    least_squares: LeastSquaresOptions = Field(
+        default_factory=LeastSquaresOptions,
+        description="the UWB-only baseline (filter.architecture: standalone)",
     )
 
     @model_validator(mode="after")
@@ -176,6 +197,10 @@ class UwbRanges(Plugin):
         self.beta = self.alpha * options.sigma_range_m**2
         self.t_last = np.full(n, np.nan)
         self._screen = chi2_threshold(1, options.adaptive_screen_probability)
+
+    def standalone_solution(self) -> Solution:
+        """The UWB-only least-squares baseline with ``options.least_squares``."""
+        return least_squares_solution(self.recording, self.options.least_squares)
 
     def state_blocks(self) -> tuple[StateBlock, ...]:
         """One range bias per anchor when ``range_bias`` is on."""
@@ -259,23 +284,6 @@ class UwbRanges(Plugin):
             r = beta / alpha
         self.alpha[k], self.beta[k] = alpha, beta
         return r
-
-
-class LeastSquaresOptions(BaseModel):
-    """Options of the UWB-only least-squares baseline (see the module docstring)."""
-
-    model_config = ConfigDict(extra="forbid")
-
-    sigma_range_m: float = Field(0.05, gt=0, description="ranging noise 1σ")
-    window_s: float = Field(0.25, gt=0, description="ranges fitted together per fix")
-    max_range_m: float | None = Field(None, gt=0, description="longer ranges are not used")
-    min_anchors: int = Field(3, ge=3, description="distinct anchors needed in a window")
-    height_sigma_m: float | None = Field(
-        None, gt=0, description="σ of the optional height constraint (None: none)"
-    )
-    velocity_span_s: float = Field(2.0, gt=0, description="fixes regressed for the velocity")
-    max_iterations: int = Field(20, ge=1, description="Gauss–Newton iterations per window")
-    tolerance_m: float = Field(1e-4, gt=0, description="Gauss–Newton convergence step")
 
 
 def _gauss_newton(

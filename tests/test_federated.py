@@ -154,3 +154,12 @@ def test_dead_reckoning_config_runs_and_refuses_plugins(tmp_path: Path) -> None:
     data["plugins"] = [{"type": "odometer"}]
     with pytest.raises(ConfigError, match="dead_reckoning uses no plugins"):
         parse_config(data)
+
+
+def test_standalone_architecture_needs_exactly_one_plugin() -> None:
+    base = {"name": "x", "filter": {"architecture": "standalone"}}
+    with pytest.raises(ConfigError, match="exactly one plugin"):
+        parse_config({**base, "plugins": []})
+    with pytest.raises(ConfigError, match="exactly one plugin"):
+        parse_config({**base, "plugins": [{"type": "uwb"}, {"type": "odometer"}]})
+    assert parse_config({**base, "plugins": [{"type": "uwb"}]}).filter.architecture == "standalone"
