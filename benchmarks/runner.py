@@ -17,7 +17,9 @@ Scoring (per solution, errors ε = estimate − truth interpolated at the soluti
   ``nees_rms = sqrt(mean_axes(RMS(ε_i/σ_i)²))`` (1 when σ is honest) and the mean 3-D NEES;
 * per axis also min ε, max ε and the variance (seed 002 Table 2); on a face, the errors along
   and across the face (seed 004's x is across the face, its z is up);
-* faults (the recording's ``meta.extra['faults']``): a fault on a sensor is *detected* by the
+* faults (the recording's ``meta.extra['faults']``) on a sensor that the method reads (a
+  plugin of that type is enabled; dropouts and IMU gaps are not inconsistencies to detect) are
+  counted in ``faults_injected``; such a fault is *detected* by the
   first isolation of a federated local holding that sensor's plugin, or for a centralized filter
   by the first χ²-gate rejection of that plugin, within ``[t_start, t_end + DETECTION_GRACE_S]``;
   the delay is from ``t_start``. A *false alarm* is an isolation that no injected fault on that
@@ -323,7 +325,8 @@ def score_faults(
     for b in blocks:
         local_types.setdefault(b.local_name, set()).add(b.type)
     isolations = [e for e in result.faults if e.action == ISOLATE]
-    detectable = [f for f in injected if f.get("type") in FAULT_SENSOR]
+    used = {b.type for b in blocks}
+    detectable = [f for f in injected if FAULT_SENSOR.get(f.get("type", "")) in used]
     delays: list[float] = []
     explained: set[int] = set()
     for f in detectable:

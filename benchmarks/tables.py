@@ -51,7 +51,7 @@ class TableSpec:
     rows: tuple[RowSpec, ...]
     columns: tuple[Column, ...]
     paper: dict[tuple[str, str], float] = field(default_factory=dict)
-    """The seed paper's figure by (row label, column field)."""
+    """The seed paper's figure by (row label, column field; ``field@group`` for a pivot)."""
     headline: str | None = None
     """The column field of the suite's bar chart."""
     note: str = ""
@@ -101,7 +101,8 @@ def build_table(spec: TableSpec, rows: Sequence[dict[str, Any]]) -> Table:
         for c in spec.columns:
             chosen = runs_of(c.group or r.group, r)
             mean, std, n = _stats([row.get(c.field, float("nan")) for row in chosen])
-            line.append(Cell(mean, std, n, spec.paper.get((r.label, c.field))))
+            key = c.field if c.group is None else f"{c.field}@{c.group}"
+            line.append(Cell(mean, std, n, spec.paper.get((r.label, key))))
         cells.append(line)
     return Table(spec, cells, runs)
 
