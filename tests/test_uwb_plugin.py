@@ -366,7 +366,7 @@ def _nlos_rows(recording: Recording, result: RunResult) -> tuple[np.ndarray, np.
     t = np.array(log.t)
     row = np.searchsorted(recording.uwb.t, t)
     is_a2 = recording.uwb.anchor_index[row] == recording.uwb.anchor_ids.index("A2")
-    return np.array(log.accepted), is_a2 & (t >= 10.0) & (t <= 20.0)
+    return np.asarray(log.accepted, dtype=bool), is_a2 & (t >= 10.0) & (t <= 20.0)
 
 
 def test_nlos_ranges_are_gated_alone(nlos_recording: Recording) -> None:
