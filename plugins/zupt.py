@@ -1,0 +1,297 @@
+"""Zero-velocity updates with a median-filtered stationarity detector (seed 002 §3–4).
+
+Detector (seed 002 §3, eqs. 1–5), per IMU sample k::
+
+    C1_k = S_a,min < ‖f̃_k‖ < S_a,max        C2_k = ‖ω̃_k‖ < S_ω        C_k = C1_k ∧ C2_k
+    C_m,k = median(C_{k−l+1}, …, C_k)        (causal, real time)
+    C_m,k = median(C_{k−(l−1)/2}, …, C_{k+(l−1)/2})   (offline, centred)
+
+with ``l`` the odd number of samples in ``window_s``. The median removes the isolated wrong
+labels ("salt-and-pepper", seed 002 Fig. 7) that noise and vibration produce. The causal
+median over the trailing window equals the centred one ``(l − 1)/2`` samples earlier, so the
+real-time label lags the offline one by ``≈ window_s/2`` at every switch:
+:func:`detect_stationary` with ``causal=True`` at sample k is the offline label of sample
+``k − (l − 1)/2``.
+
+Default thresholds (:func:`default_thresholds`), from physics rather than from a recording: at
+rest ``‖f̃‖ = ‖g + b_a + n_a‖ ≈ g + b_a,z + n_a,z`` (horizontal errors enter to second order)
+with ``g`` the WGS84 normal gravity at the recording origin, and ``‖ω̃‖ ≤ Ω_ie + ‖b_g‖ + ‖n_g‖``.
+The constant biases (datasheet 1σ ``accel_bias_mg``, ``gyro_bias_deg_h``) are covered at
+99.9 % — a bias outside the band would hide every stop, and the median cannot repair a
+constant offset. The white noise of one sample (``σ = N/√Δt`` from ``accel_vrw_mg_rthz``,
+``gyro_arw_deg_rth`` and the sample rate) is covered only at 90 % (two-sided normal for the
+accelerometer, the χ(3) quantile for the gyro norm): the median of ``l`` samples turns a
+stationary label into "moving" only when more than half of them are false alarms (for l = 51,
+P(Binom(51, 0.1) ≥ 26) < 1e-12), and the tighter band recognises motion sooner. Thus::
+
+    S_a,max/min = g ± (3.29 σ_ba + 1.64 σ_na),   S_ω = Ω_ie + 4.03 σ_bg + 2.50 σ_ng
+
+(for seed 002's MEMS IMU at 100 Hz: g ± 0.035 m/s², S_ω = 0.026 °/s). Options override them.
+
+What the detector cannot see: the shearer's cutting vibration and its turn rates grow with its
+speed, so the first and last ≈ 0.5–0.9 s of each drive (speeds below ≈ 2 cm/s) look
+stationary — measured on ``seed002-rectangle`` (tests/test_zupt_plugin.py). A ZUPT there
+would pin a moving machine to zero, so a ZUPT is applied only where the label has been
+stationary for ``guard_s`` on both sides (offline) or for the past ``guard_s`` (causal).
+
+Measurement (seed 002 eq. 12): at an epoch where the shearer stands, ``v = 0``, so with
+``ṽ = v + δv``::
+
+    z = ṽⁿ − 0,    H = [I₃, 0, 0, 0, 0, …],    R = σ_zv² I₃
+
+A stopped machine in the simulator is exactly still (its vibration envelope is zero in a stop),
+so ``σ_zv`` defaults to a floor of 1e-5 m/s, below the 4.5e-5 m/s the seed-002 IMU's own
+velocity noise accumulates between two 10 Hz updates; on a real face with the conveyor
+running, set it to the measured standstill vibration velocity.
+
+Epochs and delay: epochs are a regular grid at ``update_rate_hz`` on the IMU clock; the epoch at
+``t`` uses the label of the last IMU sample at or before ``t``. In causal mode that label is
+computed from samples up to ``t`` only (it lags the motion by ``window_s/2`` plus the blind
+time above, so a ZUPT can still hit the first second of a drive: pair it with the block's
+``gate_probability``, which rejects a ZUPT whose innovation shows the machine moving). Offline
+(``causal: false``) it also uses ``window_s/2 + guard_s`` of later samples: the same decisions
+a real-time filter gets by running that far behind the IMU.
+
+Switching with the motion constraint (seed 002 eq. 18): with the ``motion_constraint`` option
+(the options of the ``odometer`` plugin in ``mode: motion_constraint``, whose measurement
+model this plugin reuses) an epoch that is not a ZUPT epoch applies the motion constraint
+instead (zero lateral and vertical velocity in the machine frame, eq. 17), and the plugin then
+owns the mounting angles δα. This is eq. 18: ZUPT while ``C_m = 1``, the constraint otherwise.
+The constraint's noise models the cutting vibration, which is absent at standstill; running
+both there would add nothing the exact ZUPT does not already give. A separately configured
+``odometer`` plugin is not switched: it keeps running while the shearer stands, which is
+consistent (zero velocity satisfies the constraint) but makes its whitened innovations small
+during stops.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+from pydantic import Field, field_validator, model_validator
+from scipy.ndimage import median_filter, minimum_filter1d
+from scipy.stats import chi2, norm
+
+from fusion.earth import OMEGA_IE, normal_gravity
+from fusion.error_model import VELOCITY, ImuNoise, StateBlock
+from fusion.plugin import Measurement, MeasurementContext, Plugin, PluginOptions
+from fusion.recording import ImuSpec, Recording
+from plugins.odometer import Odometer, OdometerOptions
+
+BIAS_COVERAGE = 0.999
+"""Probability with which the threshold band covers the constant IMU biases."""
+SAMPLE_FALSE_ALARM = 0.1
+"""Probability that white noise alone flags one stationary sample as moving."""
+
+
+@dataclass(frozen=True)
+class StationaryThresholds:
+    """Thresholds of seed 002 eqs. 2–3: ``S_a,min < ‖f‖ < S_a,max`` and ``‖ω‖ < S_ω``.
+
+    Attributes
+    ----------
+    accel_min_mps2, accel_max_mps2
+        Band of the specific-force norm (m/s²).
+    gyro_max_rps
+        Bound of the angular-rate norm (rad/s).
+    """
+
+    accel_min_mps2: float
+    accel_max_mps2: float
+    gyro_max_rps: float
+
+
+def default_thresholds(spec: ImuSpec, rate_hz: float, gravity_mps2: float) -> StationaryThresholds:
+    """Thresholds from gravity and the IMU datasheet (see the module docstring).
+
+    Parameters
+    ----------
+    spec
+        Datasheet figures (meta.yaml ``imu.spec``); all four must be present.
+    rate_hz
+        IMU sample rate (the white noise of one sample is ``N·√rate``).
+    gravity_mps2
+        Gravity magnitude at the site.
+
+    Returns
+    -------
+    StationaryThresholds
+    """
+    figures = spec.model_dump()
+    missing = [k for k, v in figures.items() if v is None]
+    if missing:
+        raise ValueError(
+            f"meta.yaml imu.spec lacks {missing}: give the ZUPT thresholds"
+            " (accel_min_mps2, accel_max_mps2, gyro_max_dps) in the plugin options"
+        )
+    imu = ImuNoise.from_datasheet(**figures)
+    root_rate = math.sqrt(rate_hz)
+    band = float(
+        norm.ppf(0.5 + 0.5 * BIAS_COVERAGE) * imu.accel_bias
+        + norm.ppf(1.0 - 0.5 * SAMPLE_FALSE_ALARM) * imu.accel_vrw * root_rate
+    )
+    gyro_max = float(
+        OMEGA_IE
+        + math.sqrt(chi2.ppf(BIAS_COVERAGE, 3)) * imu.gyro_bias
+        + math.sqrt(chi2.ppf(1.0 - SAMPLE_FALSE_ALARM, 3)) * imu.gyro_arw * root_rate
+    )
+    return StationaryThresholds(gravity_mps2 - band, gravity_mps2 + band, gyro_max)
+
+
+def window_samples(window_s: float, rate_hz: float) -> int:
+    """Odd number of samples spanning ``window_s`` at ``rate_hz`` (1 for a zero window)."""
+    return 2 * round(0.5 * window_s * rate_hz) + 1
+
+
+def _sliding(labels: NDArray[np.bool_], size: int, causal: bool, kind: str) -> NDArray[np.bool_]:
+    """Median or minimum of boolean ``labels`` over a trailing (causal) or centred window."""
+    origin = (size - 1) // 2 if causal else 0
+    x = labels.astype(np.int8)
+    if kind == "median":
+        out = median_filter(x, size=size, origin=origin, mode="nearest")
+    else:
+        out = minimum_filter1d(x, size=size, origin=origin, mode="nearest")
+    return np.asarray(out, dtype=bool)
+
+
+def detect_stationary(
+    t: NDArray[np.float64],
+    gyro: NDArray[np.float64],
+    accel: NDArray[np.float64],
+    thresholds: StationaryThresholds,
+    window_s: float,
+    causal: bool = True,
+) -> NDArray[np.bool_]:
+    """Stationary (True) / moving labels of IMU samples (seed 002 eqs. 1–5).
+
+    Parameters
+    ----------
+    t : ndarray, shape (N,)
+        Sample times (s); the median interval sets the window length in samples.
+    gyro, accel : ndarray, shape (N, 3)
+        Angular rate (rad/s) and specific force (m/s²) in any body frame.
+    thresholds
+        ``S_a,min``, ``S_a,max``, ``S_ω``.
+    window_s
+        Median window ``l`` in seconds (rounded to an odd number of samples; 0: no filter).
+    causal
+        True: median over the trailing window ending at each sample (real time; the labels
+        lag by ``(l − 1)/2`` samples). False: centred window (offline, no lag).
+
+    Returns
+    -------
+    ndarray of bool, shape (N,)
+    """
+    rate = 1.0 / float(np.median(np.diff(t)))
+    f = np.linalg.norm(accel, axis=1)
+    w = np.linalg.norm(gyro, axis=1)
+    raw = (
+        (f > thresholds.accel_min_mps2)
+        & (f < thresholds.accel_max_mps2)
+        & (w < thresholds.gyro_max_rps)
+    )
+    return _sliding(raw, window_samples(window_s, rate), causal, "median")
+
+
+class ZuptOptions(PluginOptions):
+    """Options of the ZUPT plugin (thresholds left out default from physics)."""
+
+    accel_min_mps2: float | None = Field(None, gt=0, description="S_a,min")
+    accel_max_mps2: float | None = Field(None, gt=0, description="S_a,max")
+    gyro_max_dps: float | None = Field(None, gt=0, description="S_ω in deg/s")
+    window_s: float = Field(0.5, ge=0, description="median window l (0: no median filter)")
+    causal: bool = Field(True, description="trailing windows (real time) or centred (offline)")
+    guard_s: float = Field(1.0, ge=0, description="stationary this long around a ZUPT epoch")
+    update_rate_hz: float = Field(10.0, gt=0, description="epoch grid on the IMU clock")
+    sigma_zero_velocity_mps: float = Field(1e-5, gt=0, description="ZUPT noise, 1σ per axis")
+    motion_constraint: OdometerOptions | None = Field(
+        None, description="odometer motion_constraint options: apply it while moving (eq. 18)"
+    )
+
+    @field_validator("motion_constraint", mode="before")
+    @classmethod
+    def _constraint_mode(cls, value: Any) -> Any:
+        """The switched constraint is the odometer plugin in ``mode: motion_constraint``."""
+        if not isinstance(value, dict):
+            return value
+        if value.get("mode", "motion_constraint") != "motion_constraint":
+            raise ValueError("mode must be motion_constraint (the odometer speed is not switched)")
+        if "constraint_rate_hz" in value:
+            raise ValueError("constraint_rate_hz is not used here: update_rate_hz sets the epochs")
+        return {**value, "mode": "motion_constraint"}
+
+    @model_validator(mode="after")
+    def _band(self) -> ZuptOptions:
+        lo, hi = self.accel_min_mps2, self.accel_max_mps2
+        if lo is not None and hi is not None and lo >= hi:
+            raise ValueError(f"accel_min_mps2 ({lo}) must be below accel_max_mps2 ({hi})")
+        return self
+
+
+class Zupt(Plugin):
+    """Zero velocity while the detector says stationary; optionally the motion constraint
+    while moving (seed 002 eq. 18)."""
+
+    Options = ZuptOptions
+    options: ZuptOptions
+
+    def __init__(self, name: str, options: ZuptOptions, recording: Recording) -> None:
+        super().__init__(name, options, recording)
+        imu = recording.imu
+        self.thresholds = self._thresholds(options, recording)
+        self.stationary = detect_stationary(
+            imu.t, imu.gyro, imu.accel, self.thresholds, options.window_s, options.causal
+        )
+        rate = 1.0 / float(np.median(np.diff(imu.t)))
+        # causal: stationary over the past guard_s; offline: over ±guard_s
+        guard = window_samples(options.guard_s if options.causal else 2 * options.guard_s, rate)
+        self.usable = _sliding(self.stationary, guard, options.causal, "minimum")
+        self._epochs = np.arange(imu.t[0], imu.t[-1], 1.0 / options.update_rate_hz)[1:]
+        sample = np.searchsorted(imu.t, self._epochs, side="right") - 1
+        self.zupt_epoch = self.usable[sample]
+        self.variance = options.sigma_zero_velocity_mps**2
+        self.constraint = (
+            Odometer(name, options.motion_constraint, recording)
+            if options.motion_constraint is not None
+            else None
+        )
+
+    @staticmethod
+    def _thresholds(options: ZuptOptions, recording: Recording) -> StationaryThresholds:
+        given = (options.accel_min_mps2, options.accel_max_mps2, options.gyro_max_dps)
+        if all(v is not None for v in given):
+            lo, hi, w = (float(v) for v in given if v is not None)
+            return StationaryThresholds(lo, hi, math.radians(w))
+        meta = recording.meta
+        if meta.imu.spec is None:
+            raise ValueError(
+                "meta.yaml has no imu.spec to derive the ZUPT thresholds from: give"
+                " accel_min_mps2, accel_max_mps2 and gyro_max_dps in the plugin options"
+            )
+        gravity = float(normal_gravity(math.radians(meta.origin.lat_deg), meta.origin.height_m))
+        d = default_thresholds(meta.imu.spec, meta.imu.rate_hz, gravity)
+        return StationaryThresholds(
+            d.accel_min_mps2 if options.accel_min_mps2 is None else options.accel_min_mps2,
+            d.accel_max_mps2 if options.accel_max_mps2 is None else options.accel_max_mps2,
+            d.gyro_max_rps if options.gyro_max_dps is None else math.radians(options.gyro_max_dps),
+        )
+
+    def state_blocks(self) -> tuple[StateBlock, ...]:
+        """The mounting angles δα of the switched motion constraint, if configured."""
+        return self.constraint.state_blocks() if self.constraint is not None else ()
+
+    def epochs(self) -> NDArray[np.float64]:
+        """A regular grid at ``update_rate_hz`` on the IMU clock."""
+        return self._epochs
+
+    def measure(self, index: int, ctx: MeasurementContext) -> Measurement | None:
+        """Zero velocity at a ZUPT epoch; else the motion constraint (if configured) or None."""
+        if not self.zupt_epoch[index]:
+            return self.constraint.measure(index, ctx) if self.constraint is not None else None
+        h = np.zeros((3, ctx.layout.dim))
+        h[:, ctx.layout.slice(VELOCITY)] = np.eye(3)
+        return Measurement(ctx.velocity.copy(), h, np.eye(3) * self.variance)

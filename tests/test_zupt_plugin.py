@@ -1,0 +1,380 @@
+"""ZUPT (seed 002 §3–4): H, the stationarity detector against the simulator's stops, the filter.
+
+Truth stationarity: the simulator's motion is a schedule of dwells (ṡ = 0, cutting-vibration
+envelope 0) and drives whose speed ramps up from and down to exactly zero
+(fusion/sim/trajectory.py, ``MotionState.moving = |ṡ| > 0``), so a truth sample is stationary
+exactly when its truth.csv velocity is zero. The slow crawl at both ends of a ramp counts as
+moving: the detector's blind time there is part of what is scored.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from fusion import earth
+from fusion.attitude import dcm_from_euler
+from fusion.config import FusionConfig, load_config, parse_config
+from fusion.engine import Engine, RunResult
+from fusion.error_model import G0
+from fusion.metrics import interpolate_truth
+from fusion.plugin import Measurement, MeasurementContext, PluginError, create_plugin
+from fusion.recording import ImuData, Recording, RecordingMeta, read_recording
+from fusion.sim.simulate import simulate
+from plugins.zupt import Zupt, default_thresholds, detect_stationary, window_samples
+from tests.plugin_support import layout_with, numerical_jacobian, perturbed_context
+
+CONFIGS = Path(__file__).resolve().parents[1] / "configs"
+SPEC = {  # seed 002 Table 1, as the simulator's "seed002-mems" grade writes it to meta.yaml
+    "gyro_bias_deg_h": 3.0,
+    "gyro_arw_deg_rth": 0.0433,
+    "accel_bias_mg": 1.0,
+    "accel_vrw_mg_rthz": 0.0144,
+}
+SHORT = (  # seed002-rectangle in 2 min: a 6 m × 3 m lap with its three random stops
+    "static_start_s=20",
+    "duration_s=120",
+    "track.waypoints_m=[[0,0],[6,0],[6,3],[0,3]]",
+)
+N_SEEDS = 20
+
+
+def _static_recording(
+    gyro_bias_rps: float = 0.0,
+    accel_bias_mps2: float = 0.0,
+    spec: dict[str, float] | None = SPEC,
+    seed: int = 0,
+) -> Recording:
+    """30 s of a level IMU at rest at 34°N sampled at 100 Hz: gravity and earth rate, the
+    datasheet white noise of ``SPEC``, a constant gyro bias along x and accelerometer bias
+    along z (the axis that shifts ‖f‖)."""
+    lat, rate = math.radians(34.0), 100.0
+    meta = RecordingMeta.model_validate(
+        {
+            "format": "shearer-recording/1",
+            "origin": {"lat_deg": 34.0, "lon_deg": 117.0, "height_m": 40.0},
+            "initial": {
+                "position_enu_m": [0, 0, 0],
+                "velocity_enu_mps": [0, 0, 0],
+                "attitude_deg": {"roll": 0, "pitch": 0, "yaw": 0},
+                "sigma": {"position_m": [1] * 3, "velocity_mps": [1] * 3, "attitude_deg": [1] * 3},
+            },
+            "imu": {"rate_hz": rate, **({"spec": spec} if spec is not None else {})},
+        }
+    )
+    n = 3000
+    rng = np.random.default_rng(seed)
+    w_ie = earth.OMEGA_IE * np.array([0.0, math.cos(lat), math.sin(lat)])
+    gyro = w_ie + np.array([gyro_bias_rps, 0.0, 0.0])
+    gyro = gyro + math.radians(SPEC["gyro_arw_deg_rth"]) / 60.0 * math.sqrt(rate) * (
+        rng.standard_normal((n, 3))
+    )
+    f = [0.0, 0.0, float(earth.normal_gravity(lat, 40.0)) + accel_bias_mps2]
+    accel = f + SPEC["accel_vrw_mg_rthz"] * 1e-3 * G0 * math.sqrt(rate) * (
+        rng.standard_normal((n, 3))
+    )
+    t = np.arange(1, n + 1) / rate
+    return Recording(path=None, meta=meta, imu=ImuData(t=t, gyro=gyro, accel=accel))
+
+
+# ------------------------------------------------------------------------------------------
+# measurement model
+
+
+def test_h_matches_numerical_differentiation() -> None:
+    """z(δx) = ṽ − 0 through a perturbed SINS state; H = [I, 0, …] on the velocity error."""
+    plugin = Zupt("zupt", Zupt.Options(), _static_recording())
+    assert plugin.zupt_epoch.all()
+    layout = layout_with(plugin.state_blocks())
+    c_b_n = dcm_from_euler(0.02, -0.01, 1.3)
+
+    def measured(dx: np.ndarray) -> Measurement:
+        m = plugin.measure(3, perturbed_context(layout, dx, c_b_n=c_b_n))
+        assert m is not None
+        return m
+
+    np.testing.assert_allclose(measured(np.zeros(layout.dim)).z, 0.0, atol=1e-15)
+    steps = np.array([1e-3] * 3 + [1e-4] * 3 + [1e-2] * 3 + [0.0] * 6)
+    numeric = numerical_jacobian(lambda dx: measured(dx).z, layout.dim, steps)
+    m = measured(np.zeros(layout.dim))
+    np.testing.assert_allclose(m.H, numeric, atol=1e-9)
+    np.testing.assert_allclose(m.R, 1e-10 * np.eye(3))
+
+
+def test_motion_constraint_while_moving() -> None:
+    """Eq. 18: a moving epoch gives the odometer plugin's motion constraint (lateral and
+    vertical velocity in the machine frame, over the mounting angles this plugin then owns)."""
+    rec = _static_recording()
+    rec.imu.gyro[1000:1500, 2] += 0.05  # a turn at 2.9 °/s between 10 and 15 s
+    plugin = Zupt("zupt", Zupt.Options(motion_constraint={}), rec)
+    assert [b.name for b in plugin.state_blocks()] == ["zupt.mounting_angles"]
+    moving = np.flatnonzero(~plugin.zupt_epoch)
+    assert moving.size > 0 and plugin.zupt_epoch[:90].all()
+    layout = layout_with(plugin.state_blocks())
+    velocity = np.array([0.3, 0.1, 0.02])
+    m = plugin.measure(
+        int(moving[0]), perturbed_context(layout, np.zeros(layout.dim), velocity=velocity)
+    )
+    assert m is not None and m.z.shape == (2,)
+    np.testing.assert_allclose(m.z, velocity[[0, 2]], atol=1e-12)  # C_b^n = I, no mounting
+    assert np.any(m.H[:, layout.slice("zupt.mounting_angles")] != 0.0)
+    alone = Zupt("zupt", Zupt.Options(), rec)
+    assert alone.measure(int(moving[0]), perturbed_context(layout_with(()), np.zeros(15))) is None
+
+
+# ------------------------------------------------------------------------------------------
+# detector
+
+
+@pytest.mark.parametrize(
+    ("gyro_bias_sigmas", "accel_bias_sigmas"), [(0.0, 0.0), (4.0, 3.2), (4.0, -3.2)]
+)
+def test_default_thresholds_cover_the_datasheet_biases(
+    gyro_bias_sigmas: float, accel_bias_sigmas: float
+) -> None:
+    """At rest with constant biases up to the 99.9 % coverage of their datasheet σ the median
+    filtered labels are stationary throughout; the raw per-sample labels are not (the band
+    covers the white noise of one sample only at 90 %: the median filter removes the rest)."""
+    rec = _static_recording(
+        gyro_bias_sigmas * math.radians(SPEC["gyro_bias_deg_h"]) / 3600.0,
+        accel_bias_sigmas * SPEC["accel_bias_mg"] * 1e-3 * G0,
+    )
+    g = float(earth.normal_gravity(math.radians(34.0), 40.0))
+    thresholds = default_thresholds(rec.meta.imu.spec, 100.0, g)  # type: ignore[arg-type]
+    imu = rec.imu
+    raw = detect_stationary(imu.t, imu.gyro, imu.accel, thresholds, window_s=0.0)
+    labels = detect_stationary(imu.t, imu.gyro, imu.accel, thresholds, window_s=0.5)
+    print(f"raw false alarms {1 - raw.mean():.3f}")
+    assert 0.0 < 1.0 - raw.mean() < 0.3
+    assert labels.all()
+
+
+def test_causal_labels_are_the_offline_labels_delayed(seed002_rectangle: Recording) -> None:
+    """The trailing median at sample k equals the centred median at k − (l − 1)/2."""
+    imu = seed002_rectangle.imu
+    plugin = Zupt("zupt", Zupt.Options(), seed002_rectangle)
+    offline = detect_stationary(imu.t, imu.gyro, imu.accel, plugin.thresholds, 0.5, causal=False)
+    causal = detect_stationary(imu.t, imu.gyro, imu.accel, plugin.thresholds, 0.5, causal=True)
+    delay = (window_samples(0.5, 100.0) - 1) // 2
+    assert delay == 25
+    np.testing.assert_array_equal(causal[2 * delay :], offline[delay:-delay])
+    np.testing.assert_array_equal(plugin.stationary, causal)
+
+
+def _truth_stationary(recording: Recording) -> np.ndarray:
+    assert recording.truth is not None
+    np.testing.assert_array_equal(recording.truth.t, recording.imu.t)
+    return np.asarray(np.linalg.norm(recording.truth.velocity, axis=1) == 0.0)
+
+
+def _switches(labels: np.ndarray) -> int:
+    return int(np.count_nonzero(np.diff(labels.astype(np.int8))))
+
+
+@pytest.fixture(scope="module")
+def seed002_rectangle(tmp_path_factory: pytest.TempPathFactory) -> Recording:
+    return read_recording(simulate("seed002-rectangle", tmp_path_factory.mktemp("rect"), seed=0))
+
+
+def test_detector_errs_only_at_the_ends_of_a_drive(seed002_rectangle: Recording) -> None:
+    """seed002-rectangle, seed 0: the median filter leaves exactly the true starts and stops,
+    and every wrongly labelled sample lies within 1 s (+ window/2 in real time) of one."""
+    rec = seed002_rectangle
+    imu, truth = rec.imu, _truth_stationary(rec)
+    thresholds = Zupt("zupt", Zupt.Options(), rec).thresholds
+    true_switches = imu.t[np.flatnonzero(np.diff(truth.astype(np.int8))) + 1]
+    raw = detect_stationary(imu.t, imu.gyro, imu.accel, thresholds, 0.0)
+    for causal, reach in ((False, 1.0), (True, 1.25)):
+        labels = detect_stationary(imu.t, imu.gyro, imu.accel, thresholds, 0.5, causal)
+        wrong = imu.t[labels != truth]
+        distance = np.min(np.abs(wrong[:, None] - true_switches[None, :]), axis=1)
+        print(
+            f"causal={causal}: agreement {np.mean(labels == truth):.4f}, switches raw"
+            f" {_switches(raw)} → {_switches(labels)} (truth {true_switches.size}),"
+            f" farthest error {distance.max():.2f} s from a true switch"
+        )
+        assert _switches(labels) == true_switches.size < _switches(raw)
+        assert distance.max() < reach
+
+
+@pytest.mark.slow
+def test_detector_agreement_over_seeds(tmp_path_factory: pytest.TempPathFactory) -> None:
+    """≥ 98 % of the samples of 20 seeded seed002-rectangle runs labelled right (pooled), the
+    median filter removing the raw labels' false switches, offline and in real time."""
+    root = tmp_path_factory.mktemp("rect_seeds")
+    agree = {False: 0, True: 0}
+    worst = {False: 1.0, True: 1.0}
+    switches = {"truth": 0, "raw": 0, "median": 0}
+    samples = 0
+    for seed in range(N_SEEDS):
+        rec = read_recording(simulate("seed002-rectangle", root / str(seed), seed=seed))
+        imu, truth = rec.imu, _truth_stationary(rec)
+        thresholds = Zupt("zupt", Zupt.Options(), rec).thresholds
+        raw = detect_stationary(imu.t, imu.gyro, imu.accel, thresholds, 0.0)
+        switches["truth"] += _switches(truth)
+        switches["raw"] += _switches(raw)
+        for causal in (False, True):
+            labels = detect_stationary(imu.t, imu.gyro, imu.accel, thresholds, 0.5, causal)
+            agree[causal] += int(np.sum(labels == truth))
+            worst[causal] = min(worst[causal], float(np.mean(labels == truth)))
+            if not causal:
+                switches["median"] += _switches(labels)
+        samples += truth.size
+    pooled = {c: agree[c] / samples for c in agree}
+    print(f"agreement pooled {pooled}, worst seed {worst}, switches {switches}")
+    assert min(pooled.values()) >= 0.98
+    assert switches["median"] == switches["truth"] < switches["raw"] / 10
+
+
+# ------------------------------------------------------------------------------------------
+# options and bad input
+
+
+def test_bad_options_and_missing_spec_are_named() -> None:
+    rec = _static_recording()
+    with pytest.raises(PluginError, match=r"plugins\[0\].*accel_min_mps2 .* must be below"):
+        create_plugin(
+            "zupt", "z", {"accel_min_mps2": 9.9, "accel_max_mps2": 9.7}, rec, ("plugins", 0)
+        )
+    with pytest.raises(PluginError, match=r"motion_constraint.*mode must be motion_constraint"):
+        create_plugin("zupt", "z", {"motion_constraint": {"mode": "odometer"}}, rec, ("plugins", 0))
+    with pytest.raises(PluginError, match=r"window_sec.*did you mean 'window_s'"):
+        create_plugin("zupt", "z", {"window_sec": 1.0}, rec, ("plugins", 0))
+    no_spec = _static_recording(spec=None)
+    with pytest.raises(ValueError, match=r"imu\.spec.*gyro_max_dps"):
+        Zupt("z", Zupt.Options(), no_spec)
+    given = {"accel_min_mps2": 9.7, "accel_max_mps2": 9.9, "gyro_max_dps": 0.05}
+    assert Zupt("z", Zupt.Options(**given), no_spec).zupt_epoch.all()
+
+
+# ------------------------------------------------------------------------------------------
+# in the filter
+
+
+def _short_recording(root: Path, seed: int) -> Recording:
+    return read_recording(
+        simulate("seed002-rectangle", root / str(seed), seed=seed, overrides=SHORT)
+    )
+
+
+@pytest.fixture(scope="module")
+def short_recording(tmp_path_factory: pytest.TempPathFactory) -> Recording:
+    return _short_recording(tmp_path_factory.mktemp("short"), 0)
+
+
+def _with_options(config: FusionConfig, **options: Any) -> FusionConfig:
+    data = config.model_dump()
+    data["plugins"] = [{**data["plugins"][0], **options}]
+    return parse_config(data)
+
+
+def test_zupts_fall_on_true_standstill(short_recording: Recording) -> None:
+    """sins_mc_zupt: ZUPT rows (3) while the machine stands and constraint rows (2) while it
+    moves. Offline, every ZUPT epoch is a true standstill (the guard covers the detector's blind
+    time); in real time the gate rejects those that come while the machine starts to move, and
+    the accepted ones see at most a crawl."""
+    rec = short_recording
+    assert rec.truth is not None
+    config = load_config(CONFIGS / "sins_mc_zupt.yaml")
+    for causal in (False, True):
+        result = Engine(_with_options(config, causal=causal), rec).run()
+        log = result.innovations["zupt"]
+        dof, accepted = np.asarray(log.dof), np.asarray(log.accepted, dtype=bool)
+        t = np.asarray(log.t)
+        speed = np.linalg.norm(interpolate_truth(rec.truth, t)[2], axis=1)
+        zupt = dof == 3
+        assert zupt.sum() > 300 and (dof == 2).sum() > 300
+        print(f"causal={causal}: {zupt.sum()} ZUPTs, {np.sum(zupt & ~accepted)} rejected")
+        if causal:
+            assert np.all(speed[zupt & accepted] < 1e-3)
+        else:
+            assert np.all(speed[zupt] == 0.0) and accepted.all()
+
+
+def _probed_run(config: FusionConfig, recording: Recording) -> tuple[RunResult, np.ndarray]:
+    """Run, collecting err/σ of velocity, attitude, position at every 10th epoch of the first
+    plugin (its context is the filter's prior: errors fed back, covariance before the update)."""
+    assert recording.truth is not None
+    engine = Engine(config, recording)
+    plugin = engine.plugins[0]
+    measure = plugin.measure
+    samples: list[tuple[float, np.ndarray, np.ndarray, np.ndarray, np.ndarray]] = []
+
+    def probed(index: int, ctx: MeasurementContext) -> Measurement | None:
+        if index % 10 == 0:
+            sigma = np.sqrt(np.diag(ctx.covariance)[:9])
+            samples.append((ctx.t, ctx.velocity.copy(), ctx.c_b_n.copy(), ctx.position_enu, sigma))
+        return measure(index, ctx)
+
+    plugin.measure = probed  # type: ignore[method-assign]
+    result = engine.run()
+    t = np.array([s[0] for s in samples])
+    inside, position, velocity, attitude, _ = interpolate_truth(recording.truth, t)
+    assert inside.all()
+    ratios = []
+    for k, (_, v, c_b_n, p, sigma) in enumerate(samples):
+        phi = -Rotation.from_matrix(c_b_n @ dcm_from_euler(*attitude[k]).T).as_rotvec()
+        ratios.append(np.concatenate([v - velocity[k], phi, p - position[k]]) / sigma)
+    return result, np.array(ratios)
+
+
+def _horizontal_rms(result: RunResult, recording: Recording) -> float:
+    assert recording.truth is not None
+    inside, position, *_ = interpolate_truth(recording.truth, result.solution.t)
+    err = result.solution.position[inside, :2] - position[:, :2]
+    return float(np.sqrt(np.mean(np.sum(err**2, axis=1))))
+
+
+@pytest.mark.slow
+def test_monte_carlo_consistency_and_improvement(tmp_path_factory: pytest.TempPathFactory) -> None:
+    """20 seeded 2-minute seed002-rectangle runs, the shipped configurations. SINS + ZUPT and
+    SINS + MC + ZUPT: whitened innovations RMS in [0.7, 1.3], RMS(err/σ) < 1.5 for velocity,
+    attitude and position. Mean horizontal RMS error in seed 002's order (Table 2): SINS + MC +
+    ZUPT < SINS + MC < SINS, and SINS + ZUPT < SINS."""
+    root = tmp_path_factory.mktemp("zupt_mc")
+    names = ("sins_only", "sins_mc", "sins_zupt", "sins_mc_zupt")
+    configs = {n: load_config(CONFIGS / f"{n}.yaml") for n in names}
+    errors: dict[str, list[float]] = {n: [] for n in names}
+    ratios: dict[str, list[np.ndarray]] = {"sins_zupt": [], "sins_mc_zupt": []}
+    whitened: dict[str, list[np.ndarray]] = {"sins_zupt": [], "sins_mc_zupt": []}
+    rejected = {"sins_zupt": 0, "sins_mc_zupt": 0}
+    for seed in range(N_SEEDS):
+        rec = _short_recording(root, seed)
+        for name, config in configs.items():
+            if name in ratios:
+                result, r = _probed_run(config, rec)
+                ratios[name].append(r)
+                log = result.innovations["zupt"]
+                ok = np.repeat(np.asarray(log.accepted, dtype=bool), np.asarray(log.dof))
+                whitened[name].append(np.asarray(log.whitened)[ok])
+                rejected[name] += int(len(log.accepted) - np.sum(log.accepted))
+            else:
+                result = Engine(config, rec).run()
+            errors[name].append(_horizontal_rms(result, rec))
+    mean_error = {n: float(np.mean(e)) for n, e in errors.items()}
+    print("mean horizontal RMS (m):", {n: round(v, 3) for n, v in mean_error.items()})
+    for name in ratios:
+        r = np.concatenate(ratios[name])
+        groups = {
+            g: float(np.sqrt(np.mean(r[:, s] ** 2)))
+            for g, s in (
+                ("velocity", slice(0, 3)),
+                ("attitude", slice(3, 6)),
+                ("position", slice(6, 9)),
+            )
+        }
+        w = float(np.sqrt(np.mean(np.concatenate(whitened[name]) ** 2)))
+        print(
+            f"{name}: whitened RMS {w:.3f} ({rejected[name]} gated), RMS(err/σ)"
+            f" { ({g: round(v, 3) for g, v in groups.items()}) }, per state"
+            f" {np.round(np.sqrt(np.mean(r**2, axis=0)), 2)}"
+        )
+        assert 0.7 <= w <= 1.3
+        assert max(groups.values()) < 1.5, groups
+    assert mean_error["sins_mc_zupt"] < mean_error["sins_mc"] < mean_error["sins_only"]
+    assert mean_error["sins_zupt"] < mean_error["sins_only"]
