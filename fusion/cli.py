@@ -87,8 +87,11 @@ def _cmd_validate(args: argparse.Namespace) -> int:
 
 def _cmd_validate_config(args: argparse.Namespace) -> int:
     from fusion.config import find_config, load_config
+    from fusion.plugin import validate_plugin_options
 
-    config = load_config(find_config(args.config))
+    path = find_config(args.config)
+    config = load_config(path)
+    validate_plugin_options(config, str(path))
     print(f"{args.config}: valid ({config.name}, {len(config.plugins)} plugin(s))")
     return 0
 

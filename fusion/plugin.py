@@ -26,6 +26,7 @@ import numpy as np
 from numpy.typing import NDArray
 from pydantic import BaseModel, ConfigDict, ValidationError
 
+from fusion.config import FusionConfig
 from fusion.earth import LocalFrame
 from fusion.error_model import StateBlock, StateLayout
 from fusion.recording import Recording
@@ -185,6 +186,25 @@ def load_plugin_class(kind: str) -> type[Plugin]:
 def available_plugins() -> dict[str, type[Plugin]]:
     """Registered plugin classes by entry-point name (imports every one)."""
     return {name: load_plugin_class(name) for name in plugin_names()}
+
+
+def validate_plugin_options(config: FusionConfig, source: str = "configuration") -> None:
+    """Check every plugin block's options against its plugin's model (no recording needed)."""
+    problems = []
+    for i, block in enumerate(config.plugins):
+        where = ("plugins", i)
+        if block.type not in plugin_names():
+            problems.append(
+                f"{source}: key {dotted((*where, 'type'))}: no plugin {block.type!r} is"
+                f" registered (known: {plugin_names()})"
+            )
+            continue
+        try:
+            load_plugin_class(block.type).Options.model_validate(block.options)
+        except ValidationError as exc:
+            problems.extend(error_lines(source, load_plugin_class(block.type).Options, exc, where))
+    if problems:
+        raise PluginError("\n".join(problems))
 
 
 def create_plugin(

@@ -204,3 +204,11 @@ def test_max_rate_thins_epochs_and_keeps_shared_time_stamps_together() -> None:
     kept = _at_most(epochs, 10.0)
     np.testing.assert_array_equal(epochs[kept], [0.0, 0.1, 0.1, 0.2, 0.31])
     assert _at_most(epochs, None).all()
+
+
+def test_validate_config_checks_plugin_options(tmp_path: Path, capsys) -> None:  # type: ignore[no-untyped-def]
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("name: bad\nplugins:\n  - {type: odometer, sigma_sped_mps: 0.01}\n")
+    assert main(["validate-config", str(bad)]) == 2
+    err = capsys.readouterr().err
+    assert "plugins[0].sigma_sped_mps" in err and "sigma_speed_mps" in err
