@@ -36,6 +36,11 @@ class ImuTuning(_Strict):
     gyro_bias_instability_deg_h: float = Field(0.0, ge=0, description="Gauss–Markov σ")
     accel_bias_instability_mg: float = Field(0.0, ge=0, description="Gauss–Markov σ")
     bias_correlation_time_s: float = Field(3600.0, gt=0)
+    bias_model: Literal["gauss_markov", "random_walk"] = Field(
+        "gauss_markov",
+        description="in-run bias: Gauss–Markov decay of the bias state, or a random walk of the"
+        " same density 2σ²/τ on top of the constant turn-on bias",
+    )
     noise_scale: float = Field(
         1.0, gt=0, description="multiplies ARW and VRW (seed 000 App. A inflates by 5)"
     )

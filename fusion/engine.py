@@ -143,6 +143,7 @@ def resolve_imu_noise(tuning: ImuTuning, spec: ImuSpec | None) -> ImuNoise:
         gyro_bias_instability_deg_h=tuning.gyro_bias_instability_deg_h,
         accel_bias_instability_mg=tuning.accel_bias_instability_mg,
         bias_correlation_time_s=tuning.bias_correlation_time_s,
+        bias_random_walk=tuning.bias_model == "random_walk",
     )
     return noise
 

@@ -167,6 +167,10 @@ class ImuNoise:
         Steady σ of the Gauss–Markov part (rad/s, m/s²); 0 for a random constant.
     bias_correlation_time_s
         Gauss–Markov correlation time.
+    bias_random_walk
+        Model the in-run part as a random walk of the same density 2σ²/τ instead of a
+        Gauss–Markov decay of the whole bias state (one state cannot hold a constant *and* a
+        Gauss–Markov part: with decay, the constant turn-on bias would be forgotten in τ).
     """
 
     gyro_arw: float
@@ -176,6 +180,7 @@ class ImuNoise:
     gyro_bias_instability: float = 0.0
     accel_bias_instability: float = 0.0
     bias_correlation_time_s: float = 3600.0
+    bias_random_walk: bool = False
 
     @classmethod
     def from_datasheet(
@@ -188,6 +193,7 @@ class ImuNoise:
         gyro_bias_instability_deg_h: float = 0.0,
         accel_bias_instability_mg: float = 0.0,
         bias_correlation_time_s: float = 3600.0,
+        bias_random_walk: bool = False,
     ) -> ImuNoise:
         """Convert datasheet units (deg/√h, mg/√Hz, deg/h, mg) to SI."""
         return cls(
@@ -198,6 +204,7 @@ class ImuNoise:
             gyro_bias_instability=gyro_bias_instability_deg_h * DEG / 3600.0,
             accel_bias_instability=accel_bias_instability_mg * 1e-3 * G0,
             bias_correlation_time_s=bias_correlation_time_s,
+            bias_random_walk=bias_random_walk,
         )
 
 
@@ -211,7 +218,9 @@ def common_blocks(
     xyz = ("x", "y", "z")
     enu = ("e", "n", "u")
     tau = imu.bias_correlation_time_s
-    gm = imu.gyro_bias_instability > 0 or imu.accel_bias_instability > 0
+    gm = (imu.gyro_bias_instability > 0 or imu.accel_bias_instability > 0) and not (
+        imu.bias_random_walk
+    )
     return (
         StateBlock(VELOCITY, enu, tuple(np.asarray(sigma_velocity, dtype=float).tolist())),
         StateBlock(ATTITUDE, enu, tuple(np.asarray(sigma_attitude, dtype=float).tolist())),
