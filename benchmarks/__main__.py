@@ -6,8 +6,10 @@ ZUPT), ``seed003`` (SINS/OD/MAG; CKF vs AFKF under magnetic interference), ``see
 ``ablation`` (every configuration, nominal and with each injected fault), ``speed`` (real-time
 factor and peak memory on the 8-hour shift, beside the naive covariance step). Each writes
 Markdown and CSV tables and PNG figures into ``--out`` (default ``benchmarks/results/SUITE/``).
-``all`` runs every suite and regenerates ``benchmarks/RESULTS.md``. ``strapdown`` prints the
-mechanization cost per IMU sample. ``real`` hands its arguments to ``benchmarks.real.main``
+``all`` runs every suite (the real-data one too) and regenerates ``benchmarks/RESULTS.md``;
+``results`` only assembles RESULTS.md from the suites' last outputs (each section keeps its
+own command, date and machine). ``strapdown`` prints the mechanization cost per IMU sample.
+``real`` hands its arguments to ``benchmarks.real.main``
 (the real-dataset suite, issue 8) when that module exists.
 
 Monte Carlo runs are seeded (0 … N−1) and execute in ``--jobs`` local processes (default: one
@@ -79,27 +81,43 @@ def _progress(done: int, total: int, task: object, seconds: float) -> None:
 
 
 def run_suites(names: list[str], args: argparse.Namespace, command: str) -> None:
-    """Run suites, write each one's outputs; with ``all`` also benchmarks/RESULTS.md."""
-    from benchmarks.report import BENCH_DIR, write_results_md, write_suite
+    """Run suites and write each one's outputs; with ``all`` also benchmarks/RESULTS.md."""
+    from benchmarks.report import write_suite
     from benchmarks.runner import collect, run_tasks
     from benchmarks.suites import SUITES
 
-    sections = []
+    root = _root(args)
     for name in names:
         suite = SUITES[name]
         runs = args.runs if args.runs is not None else suite.default_runs
-        out = Path(args.out) / name if args.out and len(names) > 1 else None
-        out = out or (Path(args.out) if args.out else BENCH_DIR / "results" / name)
+        out = Path(args.out) if args.out and args.suite != "all" else root / name
         tasks = suite.tasks(runs, tuple(args.set))
-        print(f"{name}: {len(tasks)} recordings, {runs} run(s) each row", file=sys.stderr)
+        print(f"{name}: {len(tasks)} recordings, {runs} run(s) per row", file=sys.stderr)
         merged = collect(run_tasks(tasks, args.jobs, args.scheduler, _progress))
-        output = write_suite(suite, merged, out, runs, command)
-        print(output.markdown)
-        sections.append((suite, output))
-    if args.suite == "all":
         date = datetime.now(UTC).strftime("%Y-%m-%d %H:%M UTC")
-        path = write_results_md(sections, command, date)
-        print(f"wrote {path}", file=sys.stderr)
+        output = write_suite(suite, merged, out, runs, command, date)
+        print(output.markdown)
+
+
+def _root(args: argparse.Namespace) -> Path:
+    """Directory holding one output directory per suite."""
+    from benchmarks.report import BENCH_DIR
+
+    if args.out and args.suite in ("all", "results"):
+        return Path(args.out)
+    return BENCH_DIR / "results"
+
+
+def _assemble(args: argparse.Namespace, command: str) -> None:
+    from benchmarks.report import write_results_md
+    from benchmarks.suites import SUITES
+
+    path = write_results_md(list(SUITES.values()), _root(args), command)
+    print(f"wrote {path}", file=sys.stderr)
+
+
+def _real_available() -> bool:
+    return (Path(__file__).parent / "real.py").exists()
 
 
 def _real(argv: list[str]) -> int:
@@ -130,12 +148,21 @@ def main(argv: list[str] | None = None) -> int:
         description=__doc__,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    choices = [*sorted(SUITES), "all", "strapdown", "real"]
-    parser.add_argument("suite", choices=choices, help="suite to run ('real': issue 8's suite)")
+    choices = [*sorted(SUITES), "all", "results", "strapdown", "real"]
+    parser.add_argument(
+        "suite",
+        choices=choices,
+        help="suite to run; all: every suite, then RESULTS.md; results: only assemble"
+        " RESULTS.md from the suites' last outputs; real: issue 8's suite",
+    )
     parser.add_argument(
         "--runs", type=int, help="Monte Carlo runs (seeds 0…N−1); default per suite"
     )
-    parser.add_argument("--out", help="output directory (default benchmarks/results/SUITE)")
+    parser.add_argument(
+        "--out",
+        help="output directory (default benchmarks/results/SUITE; for all/results the parent"
+        " of the suites' directories, default benchmarks/results)",
+    )
     parser.add_argument(
         "--jobs", type=int, default=None, help="local worker processes (default: cores)"
     )
@@ -161,11 +188,15 @@ def main(argv: list[str] | None = None) -> int:
 
         args.jobs = os.cpu_count() or 1
     command = "python -m benchmarks " + " ".join(shlex.quote(a) for a in argv)
-    names = sorted(SUITES) if args.suite == "all" else [args.suite]
     from benchmarks.runner import BenchmarkError
 
     try:
-        run_suites(names, args, command)
+        if args.suite != "results":
+            run_suites(list(SUITES) if args.suite == "all" else [args.suite], args, command)
+        if args.suite in ("all", "results"):
+            _assemble(args, command)
+        if args.suite == "all" and _real_available():
+            return _real([])
     except BenchmarkError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2

@@ -236,8 +236,8 @@ def seed002_tables() -> list[TableSpec]:
         Column("e_max_signed", "E max (m)"),
         Column("n_min_signed", "N min (m)"),
         Column("n_max_signed", "N max (m)"),
-        Column("e_var", "var E (m²)"),
-        Column("n_var", "var N (m²)"),
+        Column("e_var", "var E (m²)", 4),
+        Column("n_var", "var N (m²)", 4),
         Column("horizontal_max", "max (m)"),
         Column("horizontal_mean", "mean (m)"),
     )

@@ -287,7 +287,7 @@ def test_write_suite_outputs(local_runs, tmp_path: Path):
         headline="horizontal_max",
     )
     suite = Suite("tiny", "tiny suite", 2, lambda runs, ov: [], lambda: [spec])
-    output = write_suite(suite, local_runs, tmp_path, 2, "python -m benchmarks tiny")
+    output = write_suite(suite, local_runs, tmp_path, 2, "python -m benchmarks tiny", "today")
     for name in ("runs.csv", "tiny_table.csv", "tiny_table.png", "results.md"):
         assert (tmp_path / name).stat().st_size > 0
     figures = sorted(p.name for p in (tmp_path / "figures").glob("*.png"))
