@@ -394,29 +394,21 @@ def _trace(
 
 # ----------------------------------------------------------------------------- one task
 def _measure_in_child(config: FusionConfig, recording_dir: Path, work: Path) -> dict[str, float]:
-    """Run one configuration in a child process; its wall time and peak resident memory.
-
-    The child's peak RSS is its ``ru_maxrss`` from ``os.wait4`` (the same figure
-    ``getrusage(RUSAGE_CHILDREN)`` reports after waiting for that one child).
-    """
+    """Run one configuration in a fresh child process (:mod:`benchmarks.measure`); its wall
+    time, real-time factor and peak resident memory."""
     cfg_path = work / "measured_config.yaml"
     cfg_path.write_text(config.to_yaml(), encoding="utf-8")
-    out_path, err_path = work / "measure.out", work / "measure.err"
-    with out_path.open("wb") as out, err_path.open("wb") as err:
-        proc = subprocess.Popen(
-            [sys.executable, "-m", "benchmarks.measure", str(cfg_path), str(recording_dir)],
-            stdout=out,
-            stderr=err,
-            cwd=Path(__file__).resolve().parents[1],
-        )
-        _, status, usage = os.wait4(proc.pid, 0)
-        proc.returncode = os.waitstatus_to_exitcode(status)
+    proc = subprocess.run(
+        [sys.executable, "-m", "benchmarks.measure", str(cfg_path), str(recording_dir)],
+        capture_output=True,
+        text=True,
+        cwd=Path(__file__).resolve().parents[1],
+        check=False,
+    )
     if proc.returncode != 0:
-        tail = err_path.read_text(encoding="utf-8", errors="replace").strip().splitlines()[-3:]
+        tail = proc.stderr.strip().splitlines()[-3:]
         raise RuntimeError(f"measurement child failed ({proc.returncode}): {' | '.join(tail)}")
-    figures = json.loads(out_path.read_text(encoding="utf-8"))
-    figures["peak_rss_mb"] = usage.ru_maxrss / 1024.0
-    return dict(figures)
+    return {k: float(v) for k, v in json.loads(proc.stdout.strip().splitlines()[-1]).items()}
 
 
 def execute_task(task: Task) -> TaskResult:

@@ -307,3 +307,19 @@ def test_every_suite_builds_its_tasks_and_tables():
         assert len(keys) == len(set(keys)), suite.name
         for spec in suite.tables():
             assert spec.rows and spec.columns
+
+
+def test_speed_measurement_runs_in_a_child_process():
+    task = Task(
+        "speed",
+        "tiny",
+        "seed003-brokenline",
+        0,
+        (Method("m", "sins_only", measure_memory=True),),
+        ("duration_s=70",),
+    )
+    (result,) = run_tasks([task])
+    (row,) = result.rows
+    assert row["duration_s"] == pytest.approx(70.0, abs=0.1)
+    assert row["realtime_factor"] == pytest.approx(row["duration_s"] / row["wall_s"])
+    assert 50.0 < row["peak_rss_mb"] < 2000.0
