@@ -20,7 +20,8 @@ RTKLIB solution, GPS seconds of week). The output recording:
     Time base: the IMU clock is not the GPS clock. ``t = t_arrival − imu_lag_s`` with a default
     lag of 0.120 s, the dataset maintainer's cross-correlation of the IMU yaw rate with the GNSS
     course rate (0.105 s on the first half, 0.125 s on the second, ±0.02 s; symmetric
-    differences in ``tests/test_importers.py`` find 0.110 s). The lag is an option so that a benchmark can show what it is worth; it is recorded in ``extra``.
+    differences in ``tests/test_importers.py`` find 0.110 s). The lag is an option so that a
+    benchmark can show what it is worth; it is recorded in ``extra``.
 
     Vibration: the samples are raw and unfiltered (the chip's own anti-alias filter only), so
     engine vibration is in the data: 1 σ of 2.3/0.6/0.1 °/s and 0.09/0.07/0.14 m/s² on the b
