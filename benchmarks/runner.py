@@ -543,6 +543,12 @@ def run_tasks(
 def _run_dask(
     tasks: Sequence[Task], jobs: int, scheduler: str, progress: ProgressCallback | None
 ) -> list[TaskResult]:
+    local = scheduler == "local-dask"
+    if not local and not scheduler.startswith(("tcp://", "tls://", "ucx://", "inproc://")):
+        raise BenchmarkError(
+            f"--scheduler {scheduler!r}: expected tcp://host:port (a running Dask scheduler)"
+            " or local-dask"
+        )
     try:
         from distributed import Client, LocalCluster
         from distributed import as_completed as dask_completed
@@ -552,19 +558,14 @@ def _run_dask(
             "pip install 'shearer-fusion[bench]' (or pip install 'dask[distributed]')"
         ) from None
     cluster = None
-    if scheduler == "local-dask":
+    if local:
         cluster = LocalCluster(
             n_workers=jobs, threads_per_worker=1, processes=True, dashboard_address=None
         )
         client = Client(cluster)
-    elif scheduler.startswith(("tcp://", "tls://", "ucx://", "inproc://")):
+    else:
         client = Client(scheduler)
         _upload_package(client)
-    else:
-        raise BenchmarkError(
-            f"--scheduler {scheduler!r}: expected tcp://host:port (a running Dask scheduler)"
-            " or local-dask"
-        )
     try:
         futures = client.map(_timed, list(tasks), pure=False)
         index = {f.key: i for i, f in enumerate(futures)}

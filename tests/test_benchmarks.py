@@ -8,6 +8,7 @@ The campaigns themselves are not run here; the Monte Carlo cases are tiny (two s
 from __future__ import annotations
 
 import math
+import sys
 from pathlib import Path
 from types import SimpleNamespace
 
@@ -323,3 +324,11 @@ def test_speed_measurement_runs_in_a_child_process():
     assert row["duration_s"] == pytest.approx(70.0, abs=0.1)
     assert row["realtime_factor"] == pytest.approx(row["duration_s"] / row["wall_s"])
     assert 50.0 < row["peak_rss_mb"] < 2000.0
+
+
+def test_missing_dask_is_a_clear_error(monkeypatch):
+    from benchmarks.runner import BenchmarkError
+
+    monkeypatch.setitem(sys.modules, "distributed", None)  # import distributed → ImportError
+    with pytest.raises(BenchmarkError, match=r"pip install 'shearer-fusion\[bench\]'"):
+        run_tasks(_tiny_tasks()[:1], scheduler="local-dask")
