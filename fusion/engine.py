@@ -432,6 +432,8 @@ class Engine:
             x=kf.x.copy(),
             covariance=covariance,
             frame=self.frame,
+            gyro_bias=sins.gyro_bias.copy(),
+            accel_bias=sins.accel_bias.copy(),
         )
 
     def _update(

@@ -17,7 +17,7 @@ from __future__ import annotations
 
 from abc import ABC, abstractmethod
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from functools import cached_property
 from importlib.metadata import entry_points
 from typing import Any, ClassVar
@@ -78,6 +78,9 @@ class MeasurementContext:
         closed-loop feedback).
     covariance
         Its current covariance (a read-only view of the filter's own matrix: do not modify).
+    gyro_bias, accel_bias
+        The biases the SINS currently removes from the IMU (the fed-back estimates; rad/s,
+        m/s²): a plugin reading raw IMU samples (zero angular rate) subtracts them.
     frame
         The recording's ENU frame.
     """
@@ -92,6 +95,8 @@ class MeasurementContext:
     x: NDArray[np.float64]
     covariance: NDArray[np.float64]
     frame: LocalFrame
+    gyro_bias: NDArray[np.float64] = field(default_factory=lambda: np.zeros(3))
+    accel_bias: NDArray[np.float64] = field(default_factory=lambda: np.zeros(3))
 
     @cached_property
     def position_enu(self) -> NDArray[np.float64]:

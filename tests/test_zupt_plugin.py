@@ -10,6 +10,7 @@ moving: the detector's blind time there is part of what is scored.
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -104,6 +105,38 @@ def test_h_matches_numerical_differentiation() -> None:
     m = measured(np.zeros(layout.dim))
     np.testing.assert_allclose(m.H, numeric, atol=1e-9)
     np.testing.assert_allclose(m.R, 1e-10 * np.eye(3))
+
+
+def test_zero_angular_rate_h_and_bias_estimate() -> None:
+    """ZARU rows through a perturbed SINS attitude and the removed gyro bias (ε = b − b̂ enters
+    as the nominal bias b − ε), then a static run: the gyro bias, vertical axis included, is
+    learned to the averaged-ARW level and the heading holds (it would drift at 720 °/h)."""
+    bias = np.radians([0.05, -0.12, 0.2])  # rad/s: 180, 430, 720 °/h
+    rec = _static_recording(spec={**SPEC, "gyro_bias_deg_h": 720.0})  # an MTi-G-700's figure
+    rec = replace(rec, imu=replace(rec.imu, gyro=rec.imu.gyro + bias))
+    plugin = Zupt("zupt", Zupt.Options(zero_angular_rate=True, angular_rate_floor_dps=0.0), rec)
+    layout = layout_with(plugin.state_blocks())
+    eps = layout.slice("gyro_bias")
+
+    def measured(dx: np.ndarray) -> Measurement:
+        ctx = perturbed_context(layout, dx, position_enu=np.zeros(3))
+        ctx = replace(ctx, gyro_bias=bias - dx[eps])
+        m = plugin.measure(50, ctx)
+        assert m is not None
+        return m
+
+    steps = np.array([1e-3] * 3 + [1e-4] * 3 + [1e-2] * 3 + [1e-6] * 3 + [0.0] * 3)
+    numeric = numerical_jacobian(lambda dx: measured(dx).z, layout.dim, steps)
+    np.testing.assert_allclose(measured(np.zeros(layout.dim)).H, numeric, atol=1e-9)
+
+    config = parse_config(
+        {"name": "zaru", "plugins": [{"type": "zupt", "zero_angular_rate": True}]}
+    )
+    result = Engine(config, rec).run()
+    estimate, sigma = result.state_estimate("gyro_bias")
+    assert np.all(np.abs(estimate - bias) < 3 * sigma)
+    assert np.all(np.degrees(sigma) * 3600 < 20.0)  # °/h, from 0.2 °/s
+    assert abs(np.degrees(result.solution.attitude[-1, 2])) < 0.05
 
 
 def test_motion_constraint_while_moving() -> None:
