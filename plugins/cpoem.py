@@ -91,6 +91,8 @@ applies the measurement, the second (same instant, after the update, before the 
 records the posterior. The visits are computed from the whole odometer stream before the run;
 the face-end visits at the pass boundaries use the hindsight of the reversal's confirmation
 (``reversal_hysteresis_m`` of travel), which an online system would apply that much later.
+:meth:`Cpoem.window_ends` gives the engine's online smoother the face ends (from the second
+pass on), and the smoothed positions come back through :meth:`Cpoem.receive_smoothed`.
 """
 
 from __future__ import annotations
@@ -526,6 +528,22 @@ class Cpoem(Plugin):
         assert face is not None and face.advance_m is not None
         count = int(np.count_nonzero((self._pass_ends >= t_stored) & (self._pass_ends < t_now)))
         return count * face.advance_m, count
+
+    def window_ends(self) -> NDArray[np.float64]:
+        """Face-end arrivals where online smoothing closes a window: the end of every complete
+        pass but the first (seed 000 Fig. 4: "not in the first cutting cycle")."""
+        return np.array([p.t_end for p in self.passes[1:] if p.complete], dtype=float)
+
+    def receive_smoothed(
+        self,
+        t: NDArray[np.float64],
+        position_enu: NDArray[np.float64],
+        position_covariance: NDArray[np.float64],
+    ) -> None:
+        """Refresh the stored points from a window the smoother just closed
+        (:meth:`refresh_points`)."""
+        if t.size >= 2:
+            self.refresh_points(t, position_enu, position_covariance)
 
     def stored_points(
         self,
