@@ -20,6 +20,7 @@ the tables are identical either way.
 from __future__ import annotations
 
 import argparse
+import os
 import shlex
 import sys
 import time
@@ -168,7 +169,9 @@ def main(argv: list[str] | None = None) -> int:
     )
     parser.add_argument(
         "--scheduler",
-        help="tcp://host:port of a running Dask scheduler, or local-dask (a local cluster)",
+        default=os.environ.get("FUSION_BENCH_SCHEDULER") or None,
+        help="tcp://host:port of a running Dask scheduler, or local-dask (a local cluster);"
+        " default: $FUSION_BENCH_SCHEDULER, else local processes",
     )
     parser.add_argument(
         "--set",
@@ -184,8 +187,6 @@ def main(argv: list[str] | None = None) -> int:
     if args.runs is not None and args.runs < 1:
         parser.error("--runs must be at least 1")
     if args.jobs is None:
-        import os
-
         args.jobs = os.cpu_count() or 1
     command = "python -m benchmarks " + " ".join(shlex.quote(a) for a in argv)
     from benchmarks.runner import BenchmarkError

@@ -431,7 +431,11 @@ def execute_task(task: Task) -> TaskResult:
     out = TaskResult()
     overrides = list(task.scenario_overrides)
     if task.fault is not None:
-        overrides.append(plan_fault(task.scenario, task.seed, task.fault, overrides))
+        try:
+            overrides.append(plan_fault(task.scenario, task.seed, task.fault, overrides))
+        except ValueError as exc:
+            out.notes.append(f"{task.suite}/{task.group}, seed {task.seed}: {exc}")
+            return out
     with tempfile.TemporaryDirectory(prefix="bench-") as tmp:
         work = Path(tmp)
         simulate(task.scenario, work / "rec", seed=task.seed, overrides=overrides)

@@ -197,8 +197,9 @@ def seed000_tables() -> list[TableSpec]:
             Column("horizontal_rms", "horizontal RMS (m)"),
         ),
         headline="horizontal_rms",
-        note="seed 000 Table 2 errors on top of the MTi-G-700 (simulator grades par1…par12);"
-        " the paper shows these as curves only (Par 3 and Par 2 have the largest east errors)",
+        note="simulator grades par1…par12: seed 000 Table 2's errors alone (the paper added them"
+        " to its MTi-G-700 data, whose own errors are not in these grades); the paper shows"
+        " these as curves only (Par 3 and Par 2 have the largest east errors)",
     )
     return [table3, delta, rts, grades]
 
