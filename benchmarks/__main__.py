@@ -29,7 +29,7 @@ from pathlib import Path
 
 import numpy as np
 
-from benchmarks.report import describe_machine
+from benchmarks.runner import describe_machine
 
 
 def strapdown() -> None:
@@ -96,8 +96,7 @@ def run_suites(names: list[str], args: argparse.Namespace, command: str) -> None
         print(f"{name}: {len(tasks)} recordings, {runs} run(s) per row", file=sys.stderr)
         merged = collect(run_tasks(tasks, args.jobs, args.scheduler, _progress))
         date = datetime.now(UTC).strftime("%Y-%m-%d %H:%M UTC")
-        output = write_suite(suite, merged, out, runs, command, date)
-        print(output.markdown)
+        print(write_suite(suite, merged, out, runs, command, date))
 
 
 def _root(args: argparse.Namespace) -> Path:

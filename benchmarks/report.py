@@ -13,20 +13,15 @@ Layout of a suite's output directory (default ``benchmarks/results/SUITE/``, not
 
 from __future__ import annotations
 
-import os
-import platform
 import re
 import shutil
 from collections.abc import Sequence
-from dataclasses import dataclass
 from pathlib import Path
 
-import numpy as np
-
 from benchmarks.figures import plot_cycles, plot_error_envelope, plot_fault_timeline, plot_headline
-from benchmarks.runner import WALL_CLOCK_FIELDS, TaskResult, Trace
+from benchmarks.runner import WALL_CLOCK_FIELDS, TaskResult, Trace, describe_machine
 from benchmarks.suites import Suite
-from benchmarks.tables import Table, build_table, rows_to_csv, to_csv, to_markdown
+from benchmarks.tables import build_table, rows_to_csv, to_csv, to_markdown
 
 BENCH_DIR = Path(__file__).resolve().parent
 RESULTS_MD = BENCH_DIR / "RESULTS.md"
@@ -34,34 +29,9 @@ COMMITTED_FIGURES = BENCH_DIR / "figures"
 FIGURES_LINE = "Figures: "
 
 
-def describe_machine() -> str:
-    """CPU model, logical cores, OS and Python/NumPy versions of this machine."""
-    cpu = platform.processor() or platform.machine()
-    try:
-        for line in Path("/proc/cpuinfo").read_text(encoding="utf-8").splitlines():
-            if line.startswith("model name"):
-                cpu = line.split(":", 1)[1].strip()
-                break
-    except OSError:
-        pass
-    return (
-        f"{cpu}, {os.cpu_count()} logical cores, {platform.system()} {platform.release()},"
-        f" Python {platform.python_version()}, NumPy {np.__version__}"
-    )
-
-
 def slug(text: str) -> str:
     """A file-name-safe form of a label."""
     return re.sub(r"[^A-Za-z0-9.=-]+", "_", text.replace("Δ", "D")).strip("_")
-
-
-@dataclass
-class SuiteOutput:
-    """What a suite run wrote."""
-
-    tables: list[Table]
-    markdown: str
-    headline_figures: list[Path]
 
 
 def _trace_figures(traces: Sequence[Trace], figures: Path) -> list[Path]:
@@ -88,8 +58,9 @@ def _trace_figures(traces: Sequence[Trace], figures: Path) -> list[Path]:
 
 def write_suite(
     suite: Suite, merged: TaskResult, out: Path, runs: int, command: str, date: str
-) -> SuiteOutput:
-    """Tables, figures and the suite's Markdown report (with command, date, machine) in ``out``."""
+) -> str:
+    """Tables, figures and the suite's Markdown report (with command, date, machine) in ``out``;
+    returns the Markdown."""
     out.mkdir(parents=True, exist_ok=True)
     figures = out / "figures"
     figures.mkdir(exist_ok=True)
@@ -122,7 +93,7 @@ def write_suite(
         parts.append("")
     markdown = "\n".join(parts)
     (out / "results.md").write_text(markdown, encoding="utf-8")
-    return SuiteOutput(tables, markdown, headline)
+    return markdown
 
 
 def accuracy_csv(merged: TaskResult) -> str:

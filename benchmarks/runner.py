@@ -31,6 +31,7 @@ from __future__ import annotations
 import json
 import math
 import os
+import platform
 import subprocess
 import sys
 import tempfile
@@ -157,6 +158,22 @@ class TaskResult:
     rows: list[dict[str, Any]] = field(default_factory=list)
     traces: list[Trace] = field(default_factory=list)
     notes: list[str] = field(default_factory=list)
+
+
+def describe_machine() -> str:
+    """CPU model, logical cores, OS and Python/NumPy versions of this machine."""
+    cpu = platform.processor() or platform.machine()
+    try:
+        for line in Path("/proc/cpuinfo").read_text(encoding="utf-8").splitlines():
+            if line.startswith("model name"):
+                cpu = line.split(":", 1)[1].strip()
+                break
+    except OSError:
+        pass
+    return (
+        f"{cpu}, {os.cpu_count()} logical cores, {platform.system()} {platform.release()},"
+        f" Python {platform.python_version()}, NumPy {np.__version__}"
+    )
 
 
 # ----------------------------------------------------------------------------- configuration

@@ -28,7 +28,7 @@ from typing import Any
 import yaml
 
 from benchmarks.faults import FAULT_KINDS
-from benchmarks.runner import Method, Task
+from benchmarks.runner import Method, Task, describe_machine
 from benchmarks.tables import Column, RowSpec, TableSpec
 from fusion.config import find_config
 
@@ -490,7 +490,7 @@ def speed_tables() -> list[TableSpec]:
     return [
         TableSpec(
             name="speed",
-            title="Speed and memory on longwall-shift (8 h, 100 Hz IMU)",
+            title=f"Speed and memory on longwall-shift (8 h, 100 Hz IMU); {describe_machine()}",
             rows=tuple(rows),
             columns=(
                 Column("realtime_factor", "real-time factor", 0),

@@ -288,7 +288,7 @@ def test_write_suite_outputs(local_runs, tmp_path: Path):
         headline="horizontal_max",
     )
     suite = Suite("tiny", "tiny suite", 2, lambda runs, ov: [], lambda: [spec])
-    output = write_suite(suite, local_runs, tmp_path, 2, "python -m benchmarks tiny", "today")
+    markdown = write_suite(suite, local_runs, tmp_path, 2, "python -m benchmarks tiny", "today")
     for name in ("runs.csv", "tiny_table.csv", "tiny_table.png", "results.md"):
         assert (tmp_path / name).stat().st_size > 0
     figures = sorted(p.name for p in (tmp_path / "figures").glob("*.png"))
@@ -297,7 +297,7 @@ def test_write_suite_outputs(local_runs, tmp_path: Path):
         "maginterf_od_gated_forward_errors.png",
         "maginterf_od_gated_plan.png",
     ]
-    assert "| OD | 2 |" in output.markdown and "no_such_config" in output.markdown
+    assert "| OD | 2 |" in markdown and "no_such_config" in markdown
 
 
 def test_every_suite_builds_its_tasks_and_tables():
