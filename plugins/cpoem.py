@@ -31,9 +31,9 @@ face-end point (measured on ``seed000-carrier``: 0.035 m per advance along the f
 
 Noise (eq. 8: the predicted point is never pretended exact)::
 
-    R = k R_local P̂ R_localᵀ + n σ_d² a aᵀ + σ_g² I + σ_s² u_y u_yᵀ
+    R = k R_local P̂ R_localᵀ + m σ_d² a aᵀ + σ_g² I + σ_s² u_y u_yᵀ
 
-with ``P̂`` the stored point's covariance, n advances of 1σ ``advance_sigma_m``, the AFC line's
+with ``P̂`` the stored point's covariance, m advances of 1σ ``advance_sigma_m``, the AFC line's
 deviation from "previous line plus advance" (snaking, floor; ``geometry_sigma_m``) and the error
 of finding the point again by mileage, along the track ``u_y = C̃_b^n e_y`` (``along_sigma_m``).
 
@@ -54,13 +54,13 @@ An interior point's error is the filter's own error at the earlier visit: slowly
 (heading, odometer scale, mounting) make it correlated from one point to the next along the
 whole face, and with the current state error. A filter that takes the n interior points of a
 pass as independent adds up n times the same error (measured on ``seed000-carrier`` with the
-MEMS grade: position RMS(err/σ) 1.8–3.9 along the face and vertically, and a worse SEP than with
-the face ends alone). The exact treatment would clone the position into the state at each visit
-(stochastic cloning, 3 states per point and engine support to reset them). The approximation
-made here is the one for fully correlated errors: the n interior points of a pass together carry
-the information of one, ``k = n`` (so Δ sets where the corrections are spread, not how much
-they weigh). Their whitened innovations are therefore below 1 by construction (≈ 1/√n when the
-stored covariance dominates).
+MEMS grade: position RMS(err/σ) up to 3.9 along the face and vertically by cycle 4, and a worse
+SEP than with the face ends alone). The exact treatment would clone the position into the state
+at each visit (stochastic cloning, 3 states per point and engine support to reset them). The
+approximation made here is the one for fully correlated errors: the n interior points of a pass
+together carry the information of one, ``k = n`` (so Δ sets where the corrections are spread,
+not how much they weigh). Their whitened innovations are therefore below 1 by construction
+(≈ 1/√n when the stored covariance dominates).
 
 Cycle and face-end detection (from the odometer only; ``truth.csv`` is never read)
 --------------------------------------------------------------------------------
