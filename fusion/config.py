@@ -55,6 +55,13 @@ class FaultDetectionOptions(_Strict):
         0.9999, gt=0, lt=1, description="χ² quantile (≈ 1 false isolation per hour at 10 Hz)"
     )
     hold_s: float = Field(10.0, ge=0, description="consistent this long before re-admission")
+    threshold_scale: float = Field(
+        1.5,
+        ge=1,
+        description="isolate only when the window's NIS sum exceeds this multiple of the χ²"
+        " quantile: a fault is gross; mild model mismatch over hundreds of degrees of freedom"
+        " is not",
+    )
     use_indicators: bool = Field(True, description="a suspect measurement isolates its local")
 
 

@@ -5,8 +5,14 @@ adds its normalized innovation squared NIS_k (χ² with m_k degrees of freedom w
 consistent) and the plugin's own indicator (``Measurement.suspect``, e.g. a magnetic field off
 the expected earth field). At time t the window statistic over the last ``window_s`` seconds is
 
-    T(t) = Σ NIS_k,   d(t) = Σ m_k,   fault ⇔ T(t) > χ²_{d(t)}(p)  or  (indicators on and the
-                                                                    latest update is suspect)
+    T(t) = Σ NIS_k,   d(t) = Σ m_k,   fault ⇔ T(t) > s·χ²_{d(t)}(p)  or  (indicators on and
+                                                                  the latest update is suspect)
+
+The scale s ≥ 1 (``threshold_scale``, default 1.5) keeps the test for gross faults: over a window
+of hundreds of degrees of freedom the plain χ² quantile is exceeded by a 20 % excess of
+innovation variance, which a real model (reversals at the face ends, a sensor entering range)
+shows without anything being faulty; an interference, an NLOS burst or a slip exceeds it many
+times over.
 
 A healthy local that fails the test is *isolated* (excluded from fusion and from resets; it keeps
 filtering on its own). An isolated local is *re-admitted* once it has passed the test without
@@ -62,7 +68,9 @@ class FaultMonitor:
         while self._window[0][0] <= t - opts.window_s:
             self._window.popleft()
         statistic = sum(w[1] for w in self._window)
-        threshold = chi2_threshold(sum(w[2] for w in self._window), opts.probability)
+        threshold = opts.threshold_scale * chi2_threshold(
+            sum(w[2] for w in self._window), opts.probability
+        )
         flagged = opts.use_indicators and suspect
         faulty = statistic > threshold or flagged
         if not opts.enabled:

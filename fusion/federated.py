@@ -75,7 +75,7 @@ class LocalFilter:
         p_cc_new = p_global / self.beta
         if x.size > N_COMMON:
             own = slice(N_COMMON, None)
-            gain = scipy.linalg.solve(p[COMMON, COMMON], p[COMMON, own], assume_a="pos").T
+            gain = (_spd_inverse(p[COMMON, COMMON], np.eye(N_COMMON)) @ p[COMMON, own]).T
             conditional = p[own, own] - gain @ p[COMMON, own]
             x[own] += gain @ (x_global - x[COMMON])
             p[own, COMMON] = gain @ p_cc_new
@@ -83,6 +83,18 @@ class LocalFilter:
             p[own, own] = conditional + gain @ p_cc_new @ gain.T
         p[COMMON, COMMON] = p_cc_new
         x[COMMON] = 0.0
+
+
+def _spd_inverse(p: NDArray[np.float64], identity: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Inverse of a (scaled) covariance; if rounding has made it indefinite, the inverse of its
+    nearest positive definite matrix (eigenvalues floored at 1e-12 of the largest)."""
+    sym = 0.5 * (p + p.T)
+    try:
+        return scipy.linalg.cho_solve(scipy.linalg.cho_factor(sym), identity, check_finite=False)
+    except np.linalg.LinAlgError:
+        w, v = np.linalg.eigh(sym)
+        w = np.maximum(w, 1e-12 * w.max())
+        return (v / w) @ v.T
 
 
 def _fuse(
@@ -97,12 +109,10 @@ def _fuse(
     vector = np.zeros(N_COMMON)
     identity = np.eye(N_COMMON)
     for x, p in members:
-        chol = scipy.linalg.cho_factor(p / np.outer(scale, scale), check_finite=False)
-        info_i = scipy.linalg.cho_solve(chol, identity, check_finite=False)
+        info_i = _spd_inverse(p / np.outer(scale, scale), identity)
         info += info_i
         vector += info_i @ (x / scale)
-    chol = scipy.linalg.cho_factor(info, check_finite=False)
-    p_hat = scipy.linalg.cho_solve(chol, identity, check_finite=False)
+    p_hat = _spd_inverse(info, identity)
     x_g = scale * (p_hat @ vector)
     p_g = p_hat * np.outer(scale, scale)
     return x_g, 0.5 * (p_g + p_g.T)
@@ -144,8 +154,7 @@ class FederatedFilter:
             members = [i for i, n in enumerate(plugin_locals) if n == name]
             blocks = [b for i in members for b in plugin_blocks[i]]
             index = np.concatenate(
-                [np.arange(N_COMMON)]
-                + [np.arange(layout.dim)[layout.slice(b)] for b in blocks]
+                [np.arange(N_COMMON)] + [np.arange(layout.dim)[layout.slice(b)] for b in blocks]
             )
             local_layout = StateLayout(layout.blocks[:5] + tuple(by_name[b] for b in blocks))
             p = p0[np.ix_(index, index)]
@@ -274,9 +283,7 @@ class FederatedFilter:
             if own.size == 0:
                 continue
             pl, xl = f.kf.P, f.kf.x
-            gain = scipy.linalg.solve(
-                pl[COMMON, COMMON], pl[COMMON, N_COMMON:], assume_a="pos"
-            ).T
+            gain = (_spd_inverse(pl[COMMON, COMMON], np.eye(N_COMMON)) @ pl[COMMON, N_COMMON:]).T
             x[own] = xl[N_COMMON:] + gain @ (x_g - xl[COMMON])
             p[np.ix_(own, own)] = pl[N_COMMON:, N_COMMON:] - gain @ pl[COMMON, N_COMMON:]
             p[own, :N_COMMON] = gain @ p_g
@@ -287,4 +294,3 @@ class FederatedFilter:
             p[np.ix_(own, own)] += gain @ p_g @ gain.T
             gains.append((own, gain))
         return x, p
-
