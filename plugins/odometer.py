@@ -12,7 +12,12 @@ With the nominal mounting ``C̃_b^m = C_b^m (I + δα×)`` (seed 000 eq. 10) and
 and the true ``v^m = [0, s̃ (1 − δk_D), 0]``. The measurement (mode ``odometer``) is
 
     z = ṽ^m − [0, s̃, 0]
-    H = [C_b^m C_n^b,  −C_b^m C_n^b (v^n×),  0,  0,  0,  …,  −C_b^m (v^b×),  [0, −ṽ^m_y, 0]ᵀ]
+    H = [C_b^m C_n^b,  −C_b^m C_n^b (v^n×),  0,  0,  0,  …,  −C_b^m (v^b×),  [0, −v^m_y, 0]ᵀ]
+
+where the parameter columns take the vehicle velocity ``v^m = [0, s̃_prev / (1 + δk̂_D), 0]``
+from the *previous* odometer sample (zero within 3σ of standstill): the SINS velocity and this
+sample's reading both carry errors that are also in z, and a column correlated with its own
+residual biases the estimates (see ``_reference_speed``).
 
 (columns δv, φ, δp, ε, ∇, then this plugin's δα (3) and δk_D). Mode ``motion_constraint``
 keeps only the x and z rows and needs no odometer (seed 002 eq. 17); it runs at the rate given
@@ -68,6 +73,7 @@ class Odometer(Plugin):
         r, p, y = np.deg2rad(options.mounting_deg)
         # C_b^m from the mounting angles in the recording's attitude convention (m relative to b).
         self.c_b_m = dcm_from_euler(r, p, y).T
+        self.speed = recording.odometer.speed if recording.odometer is not None else np.empty(0)
         self.rows = np.array([0, 1, 2]) if self.use_speed else np.array([0, 2])
         self.variance = (
             np.array(
@@ -98,17 +104,31 @@ class Odometer(Plugin):
         """Residual of the SINS velocity in m against the odometer and the constraint."""
         c_n_b = ctx.c_b_n.T
         c_n_m = self.c_b_m @ c_n_b
-        v_b = c_n_b @ ctx.velocity
         measured = np.zeros(3)
+        v_b = c_n_b @ ctx.velocity
         if self.use_speed:
-            assert self.recording.odometer is not None
-            measured[1] = self.recording.odometer.speed[index]
-        v_m = c_n_m @ ctx.velocity
-        z = v_m - measured
+            measured[1] = self.speed[index]
+            v_b = self.c_b_m.T @ np.array([0.0, self._reference_speed(index, ctx), 0.0])
+        z = c_n_m @ ctx.velocity - measured
         h = np.zeros((3, ctx.layout.dim))
         h[:, ctx.layout.slice(VELOCITY)] = c_n_m
         h[:, ctx.layout.slice(ATTITUDE)] = -c_n_m @ skew(ctx.velocity)
         h[:, ctx.layout.slice(f"{self.name}.mounting_angles")] = -self.c_b_m @ skew(v_b)
         if self.use_speed:
-            h[1, ctx.layout.slice(f"{self.name}.scale_error")] = -v_m[1]
+            h[1, ctx.layout.slice(f"{self.name}.scale_error")] = -(self.c_b_m @ v_b)[1]
         return Measurement(z[self.rows], h[self.rows], np.diag(self.variance))
+
+    def _reference_speed(self, index: int, ctx: MeasurementContext) -> float:
+        """Vehicle speed at which the parameter columns are evaluated: the previous odometer
+        sample corrected by the current scale estimate, zero within 3σ of standstill.
+
+        Not the SINS velocity and not this sample's reading: both carry errors that also enter
+        this epoch's z, and a column correlated with its own residual makes every update push
+        the scale and mounting estimates the same way (at standstill the scale walked to −0.05
+        against a true +0.01).
+        """
+        speed = self.speed[max(index - 1, 0)]
+        if abs(speed) < 3.0 * self.options.sigma_speed_mps:
+            return 0.0
+        scale = ctx.x[ctx.layout.slice(f"{self.name}.scale_error")][0]
+        return float(speed / (1.0 + scale))

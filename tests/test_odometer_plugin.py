@@ -68,6 +68,10 @@ def test_h_matches_numerical_differentiation() -> None:
             dcm_from_quat(quat_multiply(quat_from_rotvec(-dx[3:6]), quat_from_rotvec(np.zeros(3))))
             @ c_b_n_true
         )
+        # The filter already holds the true scale: the parameter columns are evaluated at the
+        # vehicle speed the odometer implies, s / (1 + δk̂).
+        x_estimate = np.zeros(layout.dim)
+        x_estimate[18] = scale_true
         ctx = MeasurementContext(
             t=0.5,
             lat=FRAME.lat0,
@@ -76,7 +80,7 @@ def test_h_matches_numerical_differentiation() -> None:
             velocity=v_n_true + dx[0:3],
             c_b_n=c_est,
             layout=layout,
-            x=np.zeros(layout.dim),
+            x=x_estimate,
             covariance=layout.initial_covariance(),
             frame=FRAME,
         )
