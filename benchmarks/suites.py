@@ -405,6 +405,10 @@ def seed004_tables() -> list[TableSpec]:
 
 # ----------------------------------------------------------------------------- ablation
 ABLATION_TRACED = ("full_ckf", "full_afkf")
+ABLATION_DEFAULT_RUNS = 3
+"""Fewer than the other suites' 20: each seed is six 5.75-hour recordings times every
+configuration — several CPU-hours per seed while full_afkf runs at ≈ 16× real time (speed
+suite, November 2026); ``--runs`` sets more."""
 ABLATION_GROUPS = ("nominal", *FAULT_KINDS)
 
 
@@ -530,7 +534,7 @@ SUITES: dict[str, Suite] = {
         Suite(
             "ablation",
             "every config, nominal and each fault, longwall-200m",
-            20,
+            ABLATION_DEFAULT_RUNS,
             ablation_tasks,
             ablation_tables,
         ),
