@@ -68,3 +68,27 @@ def test_magnetic_interference_isolated_readmitted_and_bounded(
     print(f"max horizontal: AFKF {afkf_max:.2f} m (clean {clean:.2f}), plain CKF {ckf_max:.2f} m")
     assert afkf_max <= 1.3 * clean
     assert afkf_max <= 0.5 * ckf_max
+
+
+def test_odometer_slip_isolated_and_readmitted(
+    recordings: dict[str, Recording], tmp_path: Path
+) -> None:
+    """A 30 % over-reading wheel for 15 s: the kinematic local is isolated at once and re-admitted
+    after window + hold; the slip does not reach the solution as it does through the CKF. (With
+    the odometer the only velocity aid, the free SINS drifts meanwhile: the max error is 2.2×
+    the clean run's, short of the 1.3× the issue hopes for — see the closing note.)"""
+    fault = "faults=[{kind: odometer_slip, t_start: 60, t_end: 75, slip_ratio: 0.3}]"
+    simulate("seed003-brokenline", tmp_path / "slip", seed=2, overrides=[*SHORT, fault])
+    slipping = read_recording(tmp_path / "slip")
+    afkf = load_config(CONFIGS / "sins_od_mag_afkf.yaml")
+    opts = afkf.filter.federated.fault_detection
+    result = Engine(afkf, slipping).run()
+    events = [(e.local, e.action, e.t) for e in result.faults]
+    assert [(loc, act) for loc, act, _ in events] == [
+        ("kinematic", ISOLATE),
+        ("kinematic", READMIT),
+    ]
+    assert 60.0 <= events[0][2] <= 62.0
+    assert 75.0 + opts.hold_s <= events[1][2] <= 75.0 + opts.window_s + opts.hold_s + 2.0
+    ckf = Engine(load_config(CONFIGS / "sins_od_mag_ckf.yaml"), slipping).run()
+    assert _max_horizontal(result, slipping) < 0.6 * _max_horizontal(ckf, slipping)
