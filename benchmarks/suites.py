@@ -276,8 +276,13 @@ SEED003_NOMINAL = (
     ),
 )
 SEED003_FAULTY = (
-    ("CKF", "sins_od_mag_ckf", ("plugins.*.gate_probability=null",)),
-    ("CKF, χ² gate 0.999", "sins_od_mag_ckf", ("plugins.*.gate_probability=0.999",)),
+    (
+        "CKF",
+        "sins_od_mag_ckf",
+        ("plugins.*.gate_probability=null", "plugins.magnetometer.adaptive_noise='off'"),
+    ),
+    ("CKF, adaptive R", "sins_od_mag_ckf", ("plugins.*.gate_probability=null",)),
+    ("CKF, adaptive R, χ² gate 0.999", "sins_od_mag_ckf", ("plugins.*.gate_probability=0.999",)),
     (
         "AFKF, trace β",
         "sins_od_mag_afkf",
@@ -352,7 +357,9 @@ def seed003_tables() -> list[TableSpec]:
             ("AFKF, trace β, interference", "n_max"): 1.9420,
         },
         headline="horizontal_max",
-        note="detected: an isolation of the magnetometer's local (AFKF) or a χ²-gate rejection of"
+        note="CKF: no gate, no adaptive magnetometer noise (seed 003's baseline); adaptive R: the"
+        " magnetometer plugin's eq. 32 noise of sins_od_mag_ckf; detected: an isolation of the"
+        " magnetometer's local (AFKF) or a χ²-gate rejection of"
         " a magnetometer update (CKF) inside the window (+5 s); false alarm: an isolation no"
         " injected fault explains",
     )
