@@ -47,6 +47,7 @@ import numpy as np
 import yaml
 from numpy.typing import NDArray
 
+from benchmarks.faults import plan_fault
 from fusion.attitude import dcm_from_quat, euler_from_dcm, quat_from_rotvec, wrap_angle
 from fusion.config import ConfigError, FusionConfig, find_config, parse_config
 from fusion.engine import Engine, RunResult
@@ -378,20 +379,18 @@ def _trace(
     kind: str,
     solution: Solution,
     recording: Recording,
-    result: RunResult | None,
+    result: RunResult,
 ) -> Trace:
     truth = recording.truth
     assert truth is not None
     inside, pos, _, _, cycle = interpolate_truth(truth, solution.t)
     stride = max(1, math.ceil(int(inside.sum()) / TRACE_POINTS))
     rows = np.flatnonzero(inside)[::stride]
-    events: list[tuple[float, str, str]] = []
+    events = [(e.t, e.local, e.action) for e in result.faults if e.action in (ISOLATE, READMIT)]
     rejections: dict[str, NDArray[np.float64]] = {}
-    if result is not None:
-        events = [(e.t, e.local, e.action) for e in result.faults if e.action in (ISOLATE, READMIT)]
-        for name, log in result.innovations.items():
-            t = np.asarray(log.t)
-            rejections[name] = t[~np.asarray(log.accepted, bool)]
+    for name, log in result.innovations.items():
+        t = np.asarray(log.t)
+        rejections[name] = t[~np.asarray(log.accepted, bool)]
     return Trace(
         group=task.group,
         method=label,
@@ -442,8 +441,6 @@ def execute_task(task: Task) -> TaskResult:
         One row per method and solution; notes for methods whose configuration does not exist
         or whose run failed (the failure message is kept, the campaign goes on).
     """
-    from benchmarks.faults import plan_fault
-
     base = {"suite": task.suite, "group": task.group, "scenario": task.scenario, "seed": task.seed}
     out = TaskResult()
     overrides = list(task.scenario_overrides)
@@ -463,7 +460,8 @@ def execute_task(task: Task) -> TaskResult:
         cycles = int(truth.cycle.max())
         along = _face_axes(recording)
         injected = list(recording.meta.extra.get("faults", []))
-        results: dict[str, RunResult] = {}
+        needed = {m.compensate_from for m in task.methods}
+        results: dict[str, RunResult] = {}  # only those a later method compensates from
         for method in task.methods:
             where = f"{task.suite}/{task.group}/{method.label}"
             try:
@@ -490,7 +488,8 @@ def execute_task(task: Task) -> TaskResult:
             except Exception as exc:  # a broken configuration must not stop the campaign
                 out.notes.append(f"{where}: {type(exc).__name__}: {str(exc).splitlines()[0]}")
                 continue
-            results[method.label] = result
+            if method.label in needed:
+                results[method.label] = result
             solutions = [("forward", result.solution)]
             if result.smoothed is not None:
                 solutions.append(("smoothed", result.smoothed))
