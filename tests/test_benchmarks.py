@@ -263,7 +263,6 @@ def test_local_runs_rows_notes_and_faults(local_runs):
     assert [t.method for t in local_runs.traces] == ["od gated"]
 
 
-@pytest.mark.slow  # starting a two-worker cluster takes ≈ 25 s on the shared 2-core machine
 def test_dask_local_cluster_gives_identical_tables(local_runs):
     distributed = pytest.importorskip("distributed")
     assert distributed is not None
