@@ -59,18 +59,22 @@ class FaultMonitor:
         self.options = options
         self.isolated = False
         self._window: deque[tuple[float, float, int]] = deque()
+        self._nis_sum = 0.0
+        self._dof_sum = 0
         self._clean_since: float | None = None
 
     def observe(self, t: float, nis: float, dof: int, suspect: bool) -> FaultEvent | None:
         """Add one update's NIS; return the event if the local changes state."""
         opts = self.options
         self._window.append((t, nis, dof))
+        self._nis_sum += nis
+        self._dof_sum += dof
         while self._window[0][0] <= t - opts.window_s:
-            self._window.popleft()
-        statistic = sum(w[1] for w in self._window)
-        threshold = opts.threshold_scale * chi2_threshold(
-            sum(w[2] for w in self._window), opts.probability
-        )
+            _, old_nis, old_dof = self._window.popleft()
+            self._nis_sum -= old_nis
+            self._dof_sum -= old_dof
+        statistic = max(self._nis_sum, 0.0)
+        threshold = opts.threshold_scale * chi2_threshold(self._dof_sum, opts.probability)
         flagged = opts.use_indicators and suspect
         faulty = statistic > threshold or flagged
         if not opts.enabled:

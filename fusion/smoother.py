@@ -134,6 +134,15 @@ class StepStore:
             self._spill = None
 
 
+def _solve_psd(a: NDArray[np.float64], b: NDArray[np.float64]) -> NDArray[np.float64]:
+    """``a⁻¹ b`` for a covariance ``a``; a singular one (a state with zero prior and no process
+    noise, e.g. a datasheet figure of 0) is solved in the least-squares sense."""
+    try:
+        return scipy.linalg.solve(a, b, assume_a="pos")
+    except np.linalg.LinAlgError:
+        return np.asarray(np.linalg.lstsq(a, b, rcond=None)[0], dtype=np.float64)
+
+
 def rts(
     store: StepStore, keep: NDArray[np.bool_] | None = None
 ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
@@ -155,7 +164,7 @@ def rts(
             p_post = store.get("p_post", k)
             p_prior_next = store.get("p_prior", k + 1)
             cross = p_post @ store.get("phi", k + 1).T
-            gain = scipy.linalg.solve(p_prior_next, cross.T, assume_a="pos").T
+            gain = _solve_psd(p_prior_next, cross.T).T
             e_next = store.get("x_post", k) + gain @ (e_next - store.get("x_prior", k + 1))
             p_next = p_post + gain @ (p_next - p_prior_next) @ gain.T
             p_next = 0.5 * (p_next + p_next.T)
