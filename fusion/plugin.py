@@ -188,26 +188,35 @@ def load_plugin_class(kind: str) -> type[Plugin]:
     return cls
 
 
-def available_plugins() -> dict[str, type[Plugin]]:
-    """Registered plugin classes by entry-point name (imports every one)."""
-    return {name: load_plugin_class(name) for name in plugin_names()}
+def validated_options(
+    kind: str,
+    options: dict[str, Any],
+    where: Sequence[str | int],
+    source: str = "configuration",
+) -> tuple[type[Plugin], PluginOptions]:
+    """The class registered as ``kind`` and ``options`` validated by its model; errors name
+    ``source`` and ``where`` (the config path)."""
+    if kind not in plugin_names():
+        raise PluginError(
+            f"{source}: key {dotted((*where, 'type'))}: no plugin {kind!r} is registered"
+            f" (known: {plugin_names()})"
+        )
+    cls = load_plugin_class(kind)
+    try:
+        return cls, cls.Options.model_validate(options)
+    except ValidationError as exc:
+        raise PluginError("\n".join(error_lines(source, cls.Options, exc, where))) from None
 
 
 def validate_plugin_options(config: FusionConfig, source: str = "configuration") -> None:
-    """Check every plugin block's options against its plugin's model (no recording needed)."""
+    """Check every plugin block's options against its plugin's model (no recording needed);
+    report every problem at once."""
     problems = []
     for i, block in enumerate(config.plugins):
-        where = ("plugins", i)
-        if block.type not in plugin_names():
-            problems.append(
-                f"{source}: key {dotted((*where, 'type'))}: no plugin {block.type!r} is"
-                f" registered (known: {plugin_names()})"
-            )
-            continue
         try:
-            load_plugin_class(block.type).Options.model_validate(block.options)
-        except ValidationError as exc:
-            problems.extend(error_lines(source, load_plugin_class(block.type).Options, exc, where))
+            validated_options(block.type, block.options, ("plugins", i), source)
+        except PluginError as exc:
+            problems.append(str(exc))
     if problems:
         raise PluginError("\n".join(problems))
 
@@ -220,16 +229,5 @@ def create_plugin(
     where: Sequence[str | int],
 ) -> Plugin:
     """Instantiate plugin ``kind`` with ``options``; errors name ``where`` (the config path)."""
-    if kind not in plugin_names():
-        raise PluginError(
-            f"configuration: key {dotted((*where, 'type'))}: no plugin {kind!r} is registered"
-            f" (known: {plugin_names()})"
-        )
-    cls = load_plugin_class(kind)
-    try:
-        opts = cls.Options.model_validate(options)
-    except ValidationError as exc:
-        raise PluginError(
-            "\n".join(error_lines("configuration", cls.Options, exc, where))
-        ) from None
+    cls, opts = validated_options(kind, options, where)
     return cls(name, opts, recording)
