@@ -51,6 +51,7 @@ from fusion.filter_bank import COMMON
 from fusion.kalman import KalmanFilter, UpdateResult
 
 N_COMMON = 15
+OWN = slice(N_COMMON, None)
 
 
 @dataclass
@@ -65,6 +66,13 @@ class LocalFilter:
     monitor: FaultMonitor
     reinitialize: bool = False
 
+    def regression(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """The own states' regression on the common ones, K = P_pc P_cc⁻¹, and their
+        conditional covariance P_p|c = P_pp − K P_cp."""
+        p = self.kf.P
+        gain = (_spd_inverse(p[COMMON, COMMON]) @ p[COMMON, OWN]).T
+        return gain, p[OWN, OWN] - gain @ p[COMMON, OWN]
+
     def reset(self, x_global: NDArray[np.float64], p_global: NDArray[np.float64]) -> None:
         """Reset the common states to the global estimate, carrying the own states along.
 
@@ -74,9 +82,8 @@ class LocalFilter:
         x, p = self.kf.x, self.kf.P
         p_cc_new = p_global / self.beta
         if x.size > N_COMMON:
-            own = slice(N_COMMON, None)
-            gain = (_spd_inverse(p[COMMON, COMMON], np.eye(N_COMMON)) @ p[COMMON, own]).T
-            conditional = p[own, own] - gain @ p[COMMON, own]
+            own = OWN
+            gain, conditional = self.regression()
             x[own] += gain @ (x_global - x[COMMON])
             p[own, COMMON] = gain @ p_cc_new
             p[COMMON, own] = p[own, COMMON].T
@@ -85,12 +92,14 @@ class LocalFilter:
         x[COMMON] = 0.0
 
 
-def _spd_inverse(p: NDArray[np.float64], identity: NDArray[np.float64]) -> NDArray[np.float64]:
+def _spd_inverse(p: NDArray[np.float64]) -> NDArray[np.float64]:
     """Inverse of a (scaled) covariance; if rounding has made it indefinite, the inverse of its
     nearest positive definite matrix (eigenvalues floored at 1e-12 of the largest)."""
     sym = 0.5 * (p + p.T)
     try:
-        return scipy.linalg.cho_solve(scipy.linalg.cho_factor(sym), identity, check_finite=False)
+        return scipy.linalg.cho_solve(
+            scipy.linalg.cho_factor(sym), np.eye(p.shape[0]), check_finite=False
+        )
     except np.linalg.LinAlgError:
         w, v = np.linalg.eigh(sym)
         w = np.maximum(w, 1e-12 * w.max())
@@ -107,12 +116,11 @@ def _fuse(
     scale = np.sqrt(np.diag(members[0][1]))
     info = np.zeros((N_COMMON, N_COMMON))
     vector = np.zeros(N_COMMON)
-    identity = np.eye(N_COMMON)
     for x, p in members:
-        info_i = _spd_inverse(p / np.outer(scale, scale), identity)
+        info_i = _spd_inverse(p / np.outer(scale, scale))
         info += info_i
         vector += info_i @ (x / scale)
-    p_hat = _spd_inverse(info, identity)
+    p_hat = _spd_inverse(info)
     x_g = scale * (p_hat @ vector)
     p_g = p_hat * np.outer(scale, scale)
     return x_g, 0.5 * (p_g + p_g.T)
@@ -177,6 +185,7 @@ class FederatedFilter:
         )
         self._last_fusion = -np.inf
         self._position = layout.slice(POSITION)
+        self._fused: tuple[NDArray[np.float64], NDArray[np.float64]] | None = None
 
     def predict(self, phi: NDArray[np.float64], qd: NDArray[np.float64]) -> None:
         """Time update of every local (common process noise scaled by 1/β_i) and the master."""
@@ -186,6 +195,7 @@ class FederatedFilter:
             f.kf.predict(phi[np.ix_(f.index, f.index)], q)
         if self.master is not None:
             self.master.predict(phi[COMMON, COMMON], qd[COMMON, COMMON] / self.options.master_share)
+        self._fused = None
 
     def filter_of(self, plugin: int) -> tuple[StateLayout, KalmanFilter]:
         """The local filter of plugin ``plugin``."""
@@ -194,6 +204,7 @@ class FederatedFilter:
 
     def record(self, plugin: int, t: float, result: UpdateResult, suspect: bool) -> None:
         """Feed the local's fault monitor; note isolation and re-admission events."""
+        self._fused = None  # the local has just been updated
         f = self.locals[self._local_of_plugin[plugin]]
         event = f.monitor.observe(t, result.nis, result.dof, suspect)
         if event is not None:
@@ -211,12 +222,20 @@ class FederatedFilter:
         healthy = [f for f in self.locals if not f.monitor.isolated and not f.reinitialize]
         return healthy or [f for f in self.locals if not f.reinitialize] or self.locals
 
+    def _global(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """The fused estimate (eq. 35) of the current members, computed once per change: the
+        output, the smoother and the feedback all ask for it at the same step."""
+        if self._fused is None:
+            self._fused = _fuse(self._members(), self.master)
+        return self._fused
+
     def feedback(self, t: float) -> NDArray[np.float64]:
         """Fuse, update the shares, reset or re-reference every local; return x_g."""
         self._last_fusion = t
         members = self._members()
-        x_g, p_g = _fuse(members, self.master)
+        x_g, p_g = self._global()
         self._update_shares(members)
+        rejoined = False
         for f in self.locals:
             if f in members and self.options.mode == "fusion_reset":
                 f.reset(x_g, p_g)
@@ -224,6 +243,7 @@ class FederatedFilter:
                 f.beta = float(np.mean([m.beta for m in members]))
                 f.reset(x_g, p_g)
                 f.reinitialize = False
+                rejoined = True
             else:
                 f.kf.x[COMMON] -= x_g
         if self.master is not None:
@@ -232,6 +252,9 @@ class FederatedFilter:
                 self.master.P = p_g / self.options.master_share
             else:
                 self.master.x -= x_g
+        # Reset or re-referenced, the same members fuse to (0, P_g); a re-admitted local changes
+        # the members.
+        self._fused = None if rejoined else (np.zeros(N_COMMON), p_g)
         return x_g
 
     def _update_shares(self, members: Sequence[LocalFilter]) -> None:
@@ -249,8 +272,8 @@ class FederatedFilter:
 
     def position_covariance(self) -> NDArray[np.float64]:
         """Position block of the fused covariance (no side effects)."""
-        _, p_g = _fuse(self._members(), self.master)
-        return p_g[6:9, 6:9].copy()
+        p_g = self._global()[1]
+        return p_g[self._position, self._position].copy()
 
     @property
     def smoothing_dim(self) -> int:
@@ -258,8 +281,8 @@ class FederatedFilter:
         return N_COMMON
 
     def smoothing_state(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-        """The fused common-state estimate (eq. 35) without side effects."""
-        return _fuse(self._members(), self.master)
+        """The fused common-state estimate (eq. 35)."""
+        return self._global()
 
     def smoothing_transition(self, phi: NDArray[np.float64]) -> NDArray[np.float64]:
         """Φ of the common states."""
@@ -272,8 +295,7 @@ class FederatedFilter:
         common states through its regression K_i (P_pc = K_i P_g, P_pq = K_i P_g K_jᵀ across
         locals) with its own conditional covariance.
         """
-        members = self._members()
-        x_g, p_g = _fuse(members, self.master)
+        x_g, p_g = self._global()
         x = np.zeros(self.layout.dim)
         p = np.zeros((self.layout.dim, self.layout.dim))
         x[COMMON], p[COMMON, COMMON] = x_g, p_g
@@ -282,10 +304,10 @@ class FederatedFilter:
             own = f.index[N_COMMON:]
             if own.size == 0:
                 continue
-            pl, xl = f.kf.P, f.kf.x
-            gain = (_spd_inverse(pl[COMMON, COMMON], np.eye(N_COMMON)) @ pl[COMMON, N_COMMON:]).T
-            x[own] = xl[N_COMMON:] + gain @ (x_g - xl[COMMON])
-            p[np.ix_(own, own)] = pl[N_COMMON:, N_COMMON:] - gain @ pl[COMMON, N_COMMON:]
+            gain, conditional = f.regression()
+            xl = f.kf.x
+            x[own] = xl[OWN] + gain @ (x_g - xl[COMMON])
+            p[np.ix_(own, own)] = conditional
             p[own, :N_COMMON] = gain @ p_g
             p[:N_COMMON, own] = p[own, :N_COMMON].T
             for other, other_gain in gains:
