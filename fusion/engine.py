@@ -215,6 +215,7 @@ class Engine:
             if block.enabled
         ]
         self.gates = [b.gate_probability for b in config.plugins if b.enabled]
+        self.plugin_blocks = [p.state_blocks() for p in self.plugins]
         imu = resolve_imu_noise(config.imu, meta.imu.spec)
         self.imu_noise = imu
         sigma = meta.initial.sigma
@@ -225,9 +226,7 @@ class Engine:
             np.deg2rad(sigma.attitude_deg) * scale,
             np.multiply(sigma.position_m, scale),
         )
-        self.layout = StateLayout(blocks).extended(
-            b for p in self.plugins for b in p.state_blocks()
-        )
+        self.layout = StateLayout(blocks).extended(b for own in self.plugin_blocks for b in own)
         self.model = ErrorModel(
             self.layout,
             imu,
@@ -243,7 +242,7 @@ class Engine:
         enabled = [b for b in self.config.plugins if b.enabled]
         return FederatedFilter(
             self.layout,
-            [[b.name for b in p.state_blocks()] for p in self.plugins],
+            [[b.name for b in own] for own in self.plugin_blocks],
             [b.local_name for b in enabled],
             opts.federated,
         )
@@ -384,13 +383,12 @@ class Engine:
         feedback = np.zeros(dim)
         feedback[:15] = correction
         transition = np.eye(dim) if phi is None else bank.smoothing_transition(phi)
-        added = smoother.step(t, transition, prior, posterior, feedback, nav_after)
-        if added:
-            t_s, nav_s, cov_s = smoother.rows()
-            rows = slice(len(t_s) - added, None)
-            enu = self.frame.to_enu(nav_s[rows, LAT], nav_s[rows, LON], nav_s[rows, HGT])
+        window = smoother.step(t, transition, prior, posterior, feedback, nav_after)
+        if window is not None and window[0].size:
+            t_s, nav_s, cov_s = window
+            enu = self.frame.to_enu(nav_s[:, LAT], nav_s[:, LON], nav_s[:, HGT])
             for plugin in self.plugins:
-                plugin.receive_smoothed(t_s[rows], enu, cov_s[rows])
+                plugin.receive_smoothed(t_s, enu, cov_s)
 
     def _dead_reckoning(self) -> Solution:
         return dead_reckon(

@@ -47,6 +47,7 @@ from numpy.typing import NDArray
 from fusion.strapdown import remove_errors
 
 CHUNK = 2048
+Rows = tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]
 FIELDS = ("phi", "x_prior", "p_prior", "x_post", "p_post", "feedback")
 
 
@@ -202,6 +203,7 @@ class WindowedSmoother:
         self.covariance: list[NDArray[np.float64]] = []
         self.peak_steps = 0
         self.spilled = False
+        self._next_end = 0
 
     def step(
         self,
@@ -211,18 +213,22 @@ class WindowedSmoother:
         posterior: tuple[NDArray[np.float64], NDArray[np.float64]],
         feedback: NDArray[np.float64],
         nav_after: NDArray[np.float64] | None,
-    ) -> int:
-        """Store a step (``nav_after`` at output epochs); return the number of smoothed rows
-        added (non-zero when this step closed a window)."""
+    ) -> Rows | None:
+        """Store a step (``nav_after`` at output epochs); when it closes a window, return that
+        window's smoothed rows."""
         self.store.append(t, phi, prior, posterior, feedback, nav_after is not None)
         if nav_after is not None:
             self._navs.append(nav_after.copy())
-        due = np.any((self.window_ends > self.store.t[0]) & (self.window_ends <= t))
-        return self.close_window() if due and self.store.n > 1 else 0
+        due = False
+        while self._next_end < self.window_ends.size and self.window_ends[self._next_end] <= t:
+            self._next_end += 1
+            due = True
+        return self.close_window() if due and self.store.n > 1 else None
 
-    def close_window(self) -> int:
+    def close_window(self) -> Rows:
         """Smooth the stored window, keep its output rows, start an empty window; return the
-        number of rows it added."""
+        window's rows."""
+        first = len(self.t)
         store = self.store
         self.peak_steps = max(self.peak_steps, store.n)
         self.spilled |= store.spilled
@@ -235,12 +241,16 @@ class WindowedSmoother:
                 self.t.append(float(t))
                 self.nav.append(smoothed)
                 self.covariance.append(pk[6:9, 6:9].copy())
-        added = len(self._navs)
         store.close()
         self.store = StepStore(self.dim, self.budget)
         self._navs = []
-        return added
+        return self.rows(first)
 
-    def rows(self) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
-        """Times, smoothed navigation states and position covariances of all smoothed rows."""
-        return np.array(self.t), np.array(self.nav), np.array(self.covariance)
+    def rows(self, first: int = 0) -> Rows:
+        """Times, smoothed navigation states and position covariances of the rows from
+        ``first`` on (default: all)."""
+        return (
+            np.array(self.t[first:]),
+            np.array(self.nav[first:]),
+            np.array(self.covariance[first:]),
+        )
