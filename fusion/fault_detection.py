@@ -66,6 +66,8 @@ class FaultMonitor:
     def observe(self, t: float, nis: float, dof: int, suspect: bool) -> FaultEvent | None:
         """Add one update's NIS; return the event if the local changes state."""
         opts = self.options
+        if not opts.enabled:
+            return None
         self._window.append((t, nis, dof))
         self._nis_sum += nis
         self._dof_sum += dof
@@ -77,8 +79,6 @@ class FaultMonitor:
         threshold = opts.threshold_scale * chi2_threshold(self._dof_sum, opts.probability)
         flagged = opts.use_indicators and suspect
         faulty = statistic > threshold or flagged
-        if not opts.enabled:
-            return None
         if faulty:
             self._clean_since = None
             if not self.isolated:
