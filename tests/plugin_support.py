@@ -11,16 +11,51 @@ are not applied here — they are parameters of the truth, which each test pertu
 from __future__ import annotations
 
 from collections.abc import Callable
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
+from scipy.spatial.transform import Rotation
 
-from fusion.attitude import dcm_from_quat, quat_from_rotvec
+from fusion.attitude import dcm_from_euler, dcm_from_quat, quat_from_rotvec
+from fusion.config import FusionConfig
 from fusion.earth import LocalFrame
+from fusion.engine import Engine, RunResult
 from fusion.error_model import ImuNoise, StateBlock, StateLayout, common_blocks
-from fusion.plugin import MeasurementContext
+from fusion.metrics import interpolate_truth
+from fusion.plugin import Measurement, MeasurementContext
+from fusion.recording import ImuData, Recording, RecordingMeta
 
 FRAME = LocalFrame(34.0, 117.0, 40.0)
+
+
+def recording_meta(
+    *, imu: dict[str, Any] | None = None, initial: dict[str, Any] | None = None, **sections: Any
+) -> RecordingMeta:
+    """meta.yaml of an in-memory test recording at FRAME's origin: level and at rest at the
+    origin with 1-unit σ (``initial`` overrides keys), a 100 Hz IMU (``imu`` replaces it), and
+    the stream sections given (``odometer={...}``, ``uwb={...}``, …)."""
+    start = {
+        "position_enu_m": [0, 0, 0],
+        "velocity_enu_mps": [0, 0, 0],
+        "attitude_deg": {"roll": 0, "pitch": 0, "yaw": 0},
+        "sigma": {"position_m": [1] * 3, "velocity_mps": [1] * 3, "attitude_deg": [1] * 3},
+    }
+    return RecordingMeta.model_validate(
+        {
+            "format": "shearer-recording/1",
+            "origin": {"lat_deg": 34.0, "lon_deg": 117.0, "height_m": 40.0},
+            "initial": {**start, **(initial or {})},
+            "imu": imu or {"rate_hz": 100.0},
+            **sections,
+        }
+    )
+
+
+def still_imu(duration_s: float = 1.0, rate_hz: float = 100.0) -> ImuData:
+    """An IMU stream of zeros (plugins under test that do not read the IMU)."""
+    t = np.arange(0.0, duration_s, 1.0 / rate_hz)
+    return ImuData(t=t, gyro=np.zeros((t.size, 3)), accel=np.zeros((t.size, 3)))
 
 
 def layout_with(blocks: tuple[StateBlock, ...]) -> StateLayout:
@@ -83,3 +118,49 @@ def numerical_jacobian(
         zm = residual(dx)
         columns.append((zp - zm) / (2 * steps[j]))
     return np.stack(columns, axis=-1)
+
+
+def normalized_errors(
+    config: FusionConfig,
+    recording: Recording,
+    take: Callable[[int, float], bool],
+    plugin: int = 0,
+) -> tuple[RunResult, NDArray[np.float64]]:
+    """Run the engine; at the epochs of plugin number ``plugin`` that ``take(index, t)``
+    selects, the error of the filter's estimate (the nominal SINS state in the context,
+    corrected by the estimate ``x`` it holds) over its σ, for velocity, attitude φ and
+    position, against truth.csv: rows of 9 ratios, ≈ N(0, 1) when the filter is consistent.
+    """
+    assert recording.truth is not None
+    engine = Engine(config, recording)
+    probed = engine.plugins[plugin]
+    measure = probed.measure
+    samples: list[
+        tuple[
+            float,
+            NDArray[np.float64],
+            NDArray[np.float64],
+            NDArray[np.float64],
+            NDArray[np.float64],
+            NDArray[np.float64],
+        ]
+    ] = []
+
+    def probe(index: int, ctx: MeasurementContext) -> Measurement | None:
+        if take(index, ctx.t):
+            sigma = np.sqrt(np.diag(ctx.covariance)[:9])
+            state = (ctx.velocity.copy(), ctx.c_b_n.copy(), ctx.position_enu.copy())
+            samples.append((ctx.t, *state, ctx.x[:9].copy(), sigma))
+        return measure(index, ctx)
+
+    probed.measure = probe  # type: ignore[method-assign]
+    result = engine.run()
+    t = np.array([sample[0] for sample in samples])
+    inside, position, velocity, attitude, _ = interpolate_truth(recording.truth, t)
+    assert inside.all()
+    ratios = []
+    for k, (_, v, c_b_n, p, x, sigma) in enumerate(samples):
+        phi = -Rotation.from_matrix(c_b_n @ dcm_from_euler(*attitude[k]).T).as_rotvec()
+        nominal_error = np.concatenate([v - velocity[k], phi, p - position[k]])
+        ratios.append((nominal_error - x) / sigma)
+    return result, np.array(ratios)

@@ -15,7 +15,6 @@ from fusion.engine import Engine, RunResult
 from fusion.metrics import compute_metrics, interpolate_truth
 from fusion.plugin import Measurement
 from fusion.recording import (
-    ImuData,
     OdometerData,
     Recording,
     RecordingMeta,
@@ -24,7 +23,13 @@ from fusion.recording import (
 )
 from fusion.sim.simulate import simulate
 from plugins.cpoem import Cpoem, CpoemOptions, detect_passes, odometer_mileage
-from tests.plugin_support import layout_with, numerical_jacobian, perturbed_context
+from tests.plugin_support import (
+    layout_with,
+    numerical_jacobian,
+    perturbed_context,
+    recording_meta,
+    still_imu,
+)
 
 CONFIGS = Path(__file__).resolve().parents[1] / "configs"
 
@@ -39,24 +44,17 @@ PUSH_T = 34.0
 
 
 def _meta(start_enu: tuple[float, float, float] = (0.0, 0.0, 0.0)) -> RecordingMeta:
-    return RecordingMeta.model_validate(
-        {
-            "format": "shearer-recording/1",
-            "origin": {"lat_deg": 34.0, "lon_deg": 117.0, "height_m": 40.0},
-            "initial": {
-                "position_enu_m": list(start_enu),
-                "velocity_enu_mps": [0, 0, 0],
-                "attitude_deg": {"roll": 0, "pitch": 0, "yaw": 30},
-                "sigma": {"position_m": [1] * 3, "velocity_mps": [1] * 3, "attitude_deg": [1] * 3},
-            },
-            "imu": {"rate_hz": 100.0},
-            "odometer": {"rate_hz": 10.0},
-            "face": {
-                "length_m": 10.0,
-                "advance_m": ADVANCE_M,
-                "ends_enu_m": [[0.0, 0.0, 0.0], (10.0 * ALONG).tolist()],
-            },
-        }
+    return recording_meta(
+        initial={
+            "position_enu_m": list(start_enu),
+            "attitude_deg": {"roll": 0, "pitch": 0, "yaw": 30},
+        },
+        odometer={"rate_hz": 10.0},
+        face={
+            "length_m": 10.0,
+            "advance_m": ADVANCE_M,
+            "ends_enu_m": [[0.0, 0.0, 0.0], (10.0 * ALONG).tolist()],
+        },
     )
 
 
@@ -72,11 +70,10 @@ def _recording(
     start_enu: tuple[float, float, float] = (0.0, 0.0, 0.0),
 ) -> Recording:
     odo = _odometer(profile)
-    t = np.arange(0.0, odo.t[-1] + 1e-9, 0.01)
     return Recording(
         path=None,
         meta=_meta(start_enu),
-        imu=ImuData(t=t, gyro=np.zeros((t.size, 3)), accel=np.zeros((t.size, 3))),
+        imu=still_imu(odo.t[-1] + 1e-9),
         odometer=odo,
         support=SupportData(t=np.array([PUSH_T]), advance=np.array([ADVANCE_M]))
         if support

@@ -25,11 +25,18 @@ from fusion.attitude import dcm_from_euler
 from fusion.config import load_config, parse_config
 from fusion.engine import Engine, RunResult
 from fusion.metrics import interpolate_truth
-from fusion.plugin import Measurement, MeasurementContext
-from fusion.recording import ImuData, MagnetometerData, Recording, RecordingMeta, read_recording
+from fusion.plugin import Measurement
+from fusion.recording import MagnetometerData, Recording, read_recording
 from fusion.sim.simulate import simulate
 from plugins.magnetometer import Magnetometer, MagnetometerOptions
-from tests.plugin_support import layout_with, numerical_jacobian, perturbed_context
+from tests.plugin_support import (
+    layout_with,
+    normalized_errors,
+    numerical_jacobian,
+    perturbed_context,
+    recording_meta,
+    still_imu,
+)
 
 CONFIG = Path(__file__).resolve().parents[1] / "configs" / "sins_od_mag_ckf.yaml"
 DECLINATION, INCLINATION, FIELD = -6.0, 54.0, 53.0
@@ -49,26 +56,11 @@ def _recording(field_b: np.ndarray, *, inclination: bool = True) -> Recording:
     mag: dict[str, Any] = {"rate_hz": 50.0, "declination_deg": DECLINATION, "field_uT": FIELD}
     if inclination:
         mag["inclination_deg"] = INCLINATION
-    meta = RecordingMeta.model_validate(
-        {
-            "format": "shearer-recording/1",
-            "origin": {"lat_deg": 34.0, "lon_deg": 117.0, "height_m": 40.0},
-            "initial": {
-                "position_enu_m": [0, 0, 0],
-                "velocity_enu_mps": [0, 0, 0],
-                "attitude_deg": {"roll": 0, "pitch": 0, "yaw": 0},
-                "sigma": {"position_m": [1] * 3, "velocity_mps": [1] * 3, "attitude_deg": [1] * 3},
-            },
-            "imu": {"rate_hz": 100.0},
-            "magnetometer": mag,
-        }
-    )
-    t = np.arange(0.0, 1.0, 0.01)
     n = len(field_b)
     return Recording(
         path=None,
-        meta=meta,
-        imu=ImuData(t=t, gyro=np.zeros((t.size, 3)), accel=np.zeros((t.size, 3))),
+        meta=recording_meta(magnetometer=mag),
+        imu=still_imu(),
         magnetometer=MagnetometerData(t=0.02 * np.arange(1, n + 1), field=np.asarray(field_b)),
     )
 
@@ -242,39 +234,16 @@ def test_missing_stream_and_missing_earth_field_are_named() -> None:
 
 
 def _run_probed(recording: Recording, config: Any) -> tuple[RunResult, np.ndarray]:
-    """Run and collect err/σ of velocity, attitude, position once per second.
-
-    The last plugin's context is probed: its nominal SINS state corrected by the estimate
-    ``x`` it is handed (non-zero when another plugin updated at the same epoch) is the filter's
-    estimate, and the covariance is that estimate's.
-    """
-    assert recording.truth is not None
-    engine = Engine(config, recording)
-    plugin = engine.plugins[-1]
-    measure = plugin.measure
-    samples: list[tuple[float, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]] = []
+    """err/σ of velocity, attitude, position once per second, at the last plugin's epochs."""
     next_t = [1.0]
 
-    def probed(index: int, ctx: MeasurementContext) -> Measurement | None:
-        if ctx.t >= next_t[0]:
-            next_t[0] = ctx.t + 1.0
-            sigma = np.sqrt(np.diag(ctx.covariance)[:9])
-            samples.append(
-                (ctx.t, ctx.velocity.copy(), ctx.c_b_n.copy(), ctx.position_enu, ctx.x[:9], sigma)
-            )
-        return measure(index, ctx)
+    def once_per_second(_: int, t: float) -> bool:
+        if t < next_t[0]:
+            return False
+        next_t[0] = t + 1.0
+        return True
 
-    plugin.measure = probed  # type: ignore[method-assign]
-    result = engine.run()
-    t = np.array([s[0] for s in samples])
-    inside, position, velocity, attitude, _ = interpolate_truth(recording.truth, t)
-    assert inside.all()
-    ratios = []
-    for k, (_, v, c_b_n, p, x, sigma) in enumerate(samples):
-        phi = -Rotation.from_matrix(c_b_n @ dcm_from_euler(*attitude[k]).T).as_rotvec()
-        nominal_error = np.concatenate([v - velocity[k], phi, p - position[k]])
-        ratios.append((nominal_error - x) / sigma)
-    return result, np.array(ratios)
+    return normalized_errors(config, recording, once_per_second, plugin=-1)
 
 
 def _errors(result: RunResult, recording: Recording) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

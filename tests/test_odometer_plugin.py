@@ -4,36 +4,17 @@ from __future__ import annotations
 
 import numpy as np
 
-from fusion.attitude import dcm_from_euler, dcm_from_quat, quat_from_rotvec, quat_multiply
-from fusion.earth import LocalFrame
-from fusion.error_model import ImuNoise, StateLayout, common_blocks
-from fusion.plugin import MeasurementContext
-from fusion.recording import ImuData, OdometerData, Recording, RecordingMeta
+from fusion.attitude import dcm_from_euler, dcm_from_quat, quat_from_rotvec
+from fusion.recording import OdometerData, Recording
 from plugins.odometer import Odometer, OdometerOptions
-
-FRAME = LocalFrame(34.0, 117.0, 40.0)
+from tests.plugin_support import layout_with, perturbed_context, recording_meta, still_imu
 
 
 def _recording(speed: float) -> Recording:
-    meta = RecordingMeta.model_validate(
-        {
-            "format": "shearer-recording/1",
-            "origin": {"lat_deg": 34.0, "lon_deg": 117.0, "height_m": 40.0},
-            "initial": {
-                "position_enu_m": [0, 0, 0],
-                "velocity_enu_mps": [0, 0, 0],
-                "attitude_deg": {"roll": 0, "pitch": 0, "yaw": 0},
-                "sigma": {"position_m": [1] * 3, "velocity_mps": [1] * 3, "attitude_deg": [1] * 3},
-            },
-            "imu": {"rate_hz": 100.0},
-            "odometer": {"rate_hz": 10.0},
-        }
-    )
-    t = np.arange(0.0, 1.0, 0.01)
     return Recording(
         path=None,
-        meta=meta,
-        imu=ImuData(t=t, gyro=np.zeros((t.size, 3)), accel=np.zeros((t.size, 3))),
+        meta=recording_meta(odometer={"rate_hz": 10.0}),
+        imu=still_imu(),
         odometer=OdometerData(t=np.array([0.5]), speed=np.array([speed])),
     )
 
@@ -59,31 +40,13 @@ def test_h_matches_numerical_differentiation() -> None:
         rec = _recording((1.0 + scale_true + d_k) * v_m_true[1])
         opts = OdometerOptions(mounting_deg=tuple(np.rad2deg(mounting)))
         plugin = Odometer("odometer", opts, rec)
-        imu = ImuNoise(1e-4, 1e-3, 1e-5, 1e-3)
-        layout = StateLayout(common_blocks(imu, [1] * 3, [1] * 3, [1] * 3)).extended(
-            plugin.state_blocks()
-        )
-        # The SINS state carries the errors δv and φ: C̃_b^n = (I − φ×) C_b^n.
-        c_est = (
-            dcm_from_quat(quat_multiply(quat_from_rotvec(-dx[3:6]), quat_from_rotvec(np.zeros(3))))
-            @ c_b_n_true
-        )
+        layout = layout_with(plugin.state_blocks())
         # The filter already holds the true scale: the parameter columns are evaluated at the
         # vehicle speed the odometer implies, s / (1 + δk̂).
         x_estimate = np.zeros(layout.dim)
         x_estimate[18] = scale_true
-        ctx = MeasurementContext(
-            t=0.5,
-            lat=FRAME.lat0,
-            lon=FRAME.lon0,
-            height=FRAME.height0,
-            velocity=v_n_true + dx[0:3],
-            c_b_n=c_est,
-            layout=layout,
-            x=x_estimate,
-            covariance=layout.initial_covariance(),
-            frame=FRAME,
-        )
+        # The SINS state carries the errors δv and φ: C̃_b^n = (I − φ×) C_b^n.
+        ctx = perturbed_context(layout, dx, velocity=v_n_true, c_b_n=c_b_n_true, x=x_estimate)
         m = plugin.measure(0, ctx)
         return m.z, m.H
 

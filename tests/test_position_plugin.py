@@ -5,31 +5,23 @@ from __future__ import annotations
 import numpy as np
 
 from fusion.attitude import dcm_from_euler
-from fusion.recording import ImuData, PositionData, Recording, RecordingMeta
+from fusion.recording import PositionData, Recording
 from plugins.position import PositionFixes, PositionOptions
-from tests.plugin_support import FRAME, layout_with, numerical_jacobian, perturbed_context
+from tests.plugin_support import (
+    FRAME,
+    layout_with,
+    numerical_jacobian,
+    perturbed_context,
+    recording_meta,
+    still_imu,
+)
 
 
 def _recording(fix_enu: np.ndarray, lever_arm: tuple[float, float, float]) -> Recording:
-    meta = RecordingMeta.model_validate(
-        {
-            "format": "shearer-recording/1",
-            "origin": {"lat_deg": 34.0, "lon_deg": 117.0, "height_m": 40.0},
-            "initial": {
-                "position_enu_m": [0, 0, 0],
-                "velocity_enu_mps": [0, 0, 0],
-                "attitude_deg": {"roll": 0, "pitch": 0, "yaw": 0},
-                "sigma": {"position_m": [1] * 3, "velocity_mps": [1] * 3, "attitude_deg": [1] * 3},
-            },
-            "imu": {"rate_hz": 100.0},
-            "position": {"lever_arm_b_m": list(lever_arm)},
-        }
-    )
-    t = np.arange(0.0, 1.0, 0.01)
     return Recording(
         path=None,
-        meta=meta,
-        imu=ImuData(t=t, gyro=np.zeros((t.size, 3)), accel=np.zeros((t.size, 3))),
+        meta=recording_meta(position={"lever_arm_b_m": list(lever_arm)}),
+        imu=still_imu(),
         position=PositionData(
             t=np.array([0.5]), enu=fix_enu[None, :], sigma=np.array([[0.01, 0.02, 0.03]])
         ),

@@ -22,26 +22,34 @@ from typing import Any
 
 import numpy as np
 import pytest
-from scipy.spatial.transform import Rotation
 
 from fusion.attitude import dcm_from_euler
 from fusion.config import load_config, parse_config
 from fusion.engine import Engine, RunResult
 from fusion.metrics import interpolate_truth
-from fusion.plugin import Measurement, MeasurementContext, PluginError, create_plugin
-from fusion.recording import ImuData, Recording, RecordingMeta, UwbData, read_recording
+from fusion.plugin import Measurement, PluginError, create_plugin
+from fusion.recording import Recording, UwbData, read_recording
 from fusion.sim.simulate import simulate
 from fusion.solution import Solution
 from plugins.uwb import LeastSquaresOptions, UwbOptions, UwbRanges, least_squares_solution
-from tests.plugin_support import FRAME, layout_with, numerical_jacobian, perturbed_context
+from tests.plugin_support import (
+    FRAME,
+    layout_with,
+    normalized_errors,
+    numerical_jacobian,
+    perturbed_context,
+    recording_meta,
+    still_imu,
+)
 
 ROOT = Path(__file__).resolve().parents[1]
 SIGMA_RANGE = 0.03
 """Ranging noise of the seed004-face-end scenario (its ``uwb.noise_sigma_m``)."""
-IMU_TUNING = {
-    "gyro_bias_instability_deg_h": 1620.0,
-    "accel_bias_instability_mg": 6.5,
-    "bias_correlation_time_s": 1.0e6,
+IMU_TUNING = {  # configs/sins_uwb.yaml's: the MTi-G-700's in-run instability as a random walk
+    "gyro_bias_instability_deg_h": 16.2,
+    "accel_bias_instability_mg": 0.065,
+    "bias_correlation_time_s": 100.0,
+    "bias_model": "random_walk",
 }
 FACE_LENGTH = 2.0
 # seed004-face-end's anchors (face coordinates: along, right, height) for its 10 m face; the
@@ -73,20 +81,13 @@ def _recording(
     with_uwb: bool = True,
 ) -> Recording:
     """An in-memory recording whose ``uwb.csv`` holds ``ranges`` at t = 0.5, 0.51, …"""
-    meta: dict[str, Any] = {
-        "format": "shearer-recording/1",
-        "origin": {"lat_deg": 34.0, "lon_deg": 117.0, "height_m": 40.0},
-        "initial": {
-            "position_enu_m": [0, 0, 0],
-            "velocity_enu_mps": [0, 0, 0],
-            "attitude_deg": {"roll": 0, "pitch": 0, "yaw": 0},
-            "sigma": {"position_m": [1] * 3, "velocity_mps": [1] * 3, "attitude_deg": [1] * 3},
-        },
-        "imu": {"rate_hz": 100.0},
-    }
+    streams: dict[str, Any] = {}
     if with_uwb:
-        meta["uwb"] = {"rate_hz": 40.0, "tag_lever_arm_b_m": list(lever_arm), "anchors": anchors}
-    t = np.arange(0.0, 1.0, 0.01)
+        streams["uwb"] = {
+            "rate_hz": 40.0,
+            "tag_lever_arm_b_m": list(lever_arm),
+            "anchors": anchors,
+        }
     ids = tuple(anchors)
     uwb = UwbData(
         t=0.5 + 0.01 * np.arange(len(ranges)),
@@ -96,8 +97,8 @@ def _recording(
     )
     return Recording(
         path=None,
-        meta=RecordingMeta.model_validate(meta),
-        imu=ImuData(t=t, gyro=np.zeros((t.size, 3)), accel=np.zeros((t.size, 3))),
+        meta=recording_meta(**streams),
+        imu=still_imu(),
         uwb=uwb if with_uwb else None,
     )
 
@@ -260,34 +261,8 @@ def _errors(solution: Solution, recording: Recording) -> tuple[np.ndarray, np.nd
 
 
 def _run_probed(recording: Recording, config: Any, every: int = 40) -> tuple[RunResult, np.ndarray]:
-    """Run the engine and collect err/σ of velocity, attitude, position every ``every`` ranges.
-
-    The UWB plugin's context at its epochs is the filter's prior: the nominal SINS state
-    (errors fed back, x = 0) and the covariance before the update.
-    """
-    assert recording.truth is not None
-    engine = Engine(config, recording)
-    plugin = engine.plugins[0]
-    measure = plugin.measure
-    samples: list[tuple[float, np.ndarray, np.ndarray, np.ndarray, np.ndarray]] = []
-
-    def probed(index: int, ctx: MeasurementContext) -> Measurement | None:
-        if index % every == 0:
-            sigma = np.sqrt(np.diag(ctx.covariance)[:9])
-            state = (ctx.velocity.copy(), ctx.c_b_n.copy(), ctx.position_enu.copy())
-            samples.append((ctx.t, *state, sigma))
-        return measure(index, ctx)
-
-    plugin.measure = probed  # type: ignore[method-assign]
-    result = engine.run()
-    t = np.array([s[0] for s in samples])
-    inside, position, velocity, attitude, _ = interpolate_truth(recording.truth, t)
-    assert inside.all()
-    ratios = []
-    for k, (_, v, c_b_n, p, sigma) in enumerate(samples):
-        phi = -Rotation.from_matrix(c_b_n @ dcm_from_euler(*attitude[k]).T).as_rotvec()
-        ratios.append(np.concatenate([v - velocity[k], phi, p - position[k]]) / sigma)
-    return result, np.array(ratios)
+    """err/σ of velocity, attitude, position every ``every`` ranges."""
+    return normalized_errors(config, recording, lambda index, _: index % every == 0)
 
 
 @pytest.fixture(scope="module")

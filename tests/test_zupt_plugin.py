@@ -16,7 +16,6 @@ from typing import Any
 
 import numpy as np
 import pytest
-from scipy.spatial.transform import Rotation
 
 from fusion import earth
 from fusion.attitude import dcm_from_euler
@@ -24,11 +23,17 @@ from fusion.config import FusionConfig, load_config, parse_config
 from fusion.engine import Engine, RunResult
 from fusion.error_model import G0
 from fusion.metrics import interpolate_truth
-from fusion.plugin import Measurement, MeasurementContext, PluginError, create_plugin
-from fusion.recording import ImuData, Recording, RecordingMeta, read_recording
+from fusion.plugin import Measurement, PluginError, create_plugin
+from fusion.recording import ImuData, Recording, read_recording
 from fusion.sim.simulate import simulate
 from plugins.zupt import Zupt, default_thresholds, detect_stationary, window_samples
-from tests.plugin_support import layout_with, numerical_jacobian, perturbed_context
+from tests.plugin_support import (
+    layout_with,
+    normalized_errors,
+    numerical_jacobian,
+    perturbed_context,
+    recording_meta,
+)
 
 CONFIGS = Path(__file__).resolve().parents[1] / "configs"
 SPEC = {  # seed 002 Table 1, as the simulator's "seed002-mems" grade writes it to meta.yaml
@@ -55,19 +60,7 @@ def _static_recording(
     datasheet white noise of ``SPEC``, a constant gyro bias along x and accelerometer bias
     along z (the axis that shifts ‖f‖)."""
     lat, rate = math.radians(34.0), 100.0
-    meta = RecordingMeta.model_validate(
-        {
-            "format": "shearer-recording/1",
-            "origin": {"lat_deg": 34.0, "lon_deg": 117.0, "height_m": 40.0},
-            "initial": {
-                "position_enu_m": [0, 0, 0],
-                "velocity_enu_mps": [0, 0, 0],
-                "attitude_deg": {"roll": 0, "pitch": 0, "yaw": 0},
-                "sigma": {"position_m": [1] * 3, "velocity_mps": [1] * 3, "attitude_deg": [1] * 3},
-            },
-            "imu": {"rate_hz": rate, **({"spec": spec} if spec is not None else {})},
-        }
-    )
+    meta = recording_meta(imu={"rate_hz": rate, **({"spec": spec} if spec is not None else {})})
     n = 3000
     rng = np.random.default_rng(seed)
     w_ie = earth.OMEGA_IE * np.array([0.0, math.cos(lat), math.sin(lat)])
@@ -330,30 +323,8 @@ def test_zupts_fall_on_true_standstill(short_recording: Recording) -> None:
 
 
 def _probed_run(config: FusionConfig, recording: Recording) -> tuple[RunResult, np.ndarray]:
-    """Run, collecting err/σ of velocity, attitude, position at every 10th epoch of the first
-    plugin (its context is the filter's prior: errors fed back, covariance before the update)."""
-    assert recording.truth is not None
-    engine = Engine(config, recording)
-    plugin = engine.plugins[0]
-    measure = plugin.measure
-    samples: list[tuple[float, np.ndarray, np.ndarray, np.ndarray, np.ndarray]] = []
-
-    def probed(index: int, ctx: MeasurementContext) -> Measurement | None:
-        if index % 10 == 0:
-            sigma = np.sqrt(np.diag(ctx.covariance)[:9])
-            samples.append((ctx.t, ctx.velocity.copy(), ctx.c_b_n.copy(), ctx.position_enu, sigma))
-        return measure(index, ctx)
-
-    plugin.measure = probed  # type: ignore[method-assign]
-    result = engine.run()
-    t = np.array([s[0] for s in samples])
-    inside, position, velocity, attitude, _ = interpolate_truth(recording.truth, t)
-    assert inside.all()
-    ratios = []
-    for k, (_, v, c_b_n, p, sigma) in enumerate(samples):
-        phi = -Rotation.from_matrix(c_b_n @ dcm_from_euler(*attitude[k]).T).as_rotvec()
-        ratios.append(np.concatenate([v - velocity[k], phi, p - position[k]]) / sigma)
-    return result, np.array(ratios)
+    """err/σ of velocity, attitude, position at every 10th epoch of the first plugin."""
+    return normalized_errors(config, recording, lambda index, _: index % 10 == 0)
 
 
 def _horizontal_rms(result: RunResult, recording: Recording) -> float:
