@@ -77,6 +77,11 @@ def _tasks(
     ]
 
 
+def _abs_columns(stat: str, axes: str = "enu") -> tuple[Column, ...]:
+    """``max`` or ``mean`` absolute error per axis, e.g. ``e_max`` "max abs E (m)"."""
+    return tuple(Column(f"{a}_{stat}", f"{stat} abs {a.upper()} (m)") for a in axes)
+
+
 def _sep_columns(cycles: int) -> tuple[Column, ...]:
     return tuple(Column(f"sep_c{c}", f"SEP A{c} (m)") for c in range(1, cycles + 1))
 
@@ -171,15 +176,7 @@ def seed000_tables() -> list[TableSpec]:
             RowSpec(f"Forward pass of {RTS}", "nominal", f"{RTS} Δ=2 m"),
             RowSpec(smo, "nominal", f"{RTS} Δ=2 m", "smoothed"),
         ),
-        columns=(
-            Column("e_max", "max abs E (m)"),
-            Column("n_max", "max abs N (m)"),
-            Column("u_max", "max abs U (m)"),
-            Column("e_mean", "mean abs E (m)"),
-            Column("n_mean", "mean abs N (m)"),
-            Column("u_mean", "mean abs U (m)"),
-            Column("nees_rms", "RMS(ε/σ)"),
-        ),
+        columns=(*_abs_columns("max"), *_abs_columns("mean"), Column("nees_rms", "RMS(ε/σ)")),
         headline="e_max",
     )
     grade_rows = []
@@ -190,12 +187,7 @@ def seed000_tables() -> list[TableSpec]:
         name="seed000_grades",
         title="Seed 000 Figs. 14–15: IMU grades par1…par12 without and with RTS smoothing",
         rows=tuple(grade_rows),
-        columns=(
-            Column("e_max", "max abs E (m)"),
-            Column("n_max", "max abs N (m)"),
-            Column("u_max", "max abs U (m)"),
-            Column("horizontal_rms", "horizontal RMS (m)"),
-        ),
+        columns=(*_abs_columns("max"), Column("horizontal_rms", "horizontal RMS (m)")),
         headline="horizontal_rms",
         note="simulator grades par1…par12: seed 000 Table 2's errors alone (the paper added them"
         " to its MTi-G-700 data, whose own errors are not in these grades); the paper shows"
@@ -315,11 +307,7 @@ def seed003_tasks(runs: int, overrides: tuple[str, ...]) -> list[Task]:
 
 def seed003_tables() -> list[TableSpec]:
     """Table 2 shape, then the interference comparison."""
-    columns = (
-        Column("e_max", "max abs E (m)"),
-        Column("n_max", "max abs N (m)"),
-        Column("horizontal_rms", "horizontal RMS (m)"),
-    )
+    columns = (*_abs_columns("max", "en"), Column("horizontal_rms", "horizontal RMS (m)"))
     nominal = TableSpec(
         name="seed003_table2",
         title="Seed 003 Table 2: max east/north error, seed003-brokenline",
@@ -343,8 +331,7 @@ def seed003_tables() -> list[TableSpec]:
         title="Seed 003 §5.3: magnetic interference 70–90 s, seed003-brokenline-maginterf",
         rows=tuple(rows),
         columns=(
-            Column("e_max", "max abs E (m)"),
-            Column("n_max", "max abs N (m)"),
+            *_abs_columns("max", "en"),
             Column("horizontal_max", "max horizontal (m)"),
             Column("detected_fraction", "detected", 2),
             Column("detect_delay_s", "detection delay (s)", 1),
