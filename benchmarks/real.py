@@ -117,17 +117,6 @@ def config_variant(
     return parse_config(data, f"configs/{name}.yaml (variant)")
 
 
-def plugin_available(kind: str) -> str | None:
-    """None when the plugin ``kind`` loads, else the reason it does not."""
-    from fusion.plugin import PluginError, load_plugin_class
-
-    try:
-        load_plugin_class(kind)
-    except PluginError as exc:
-        return str(exc).splitlines()[0]
-    return None
-
-
 def interpolate_rows(t: FloatArray, t_rows: FloatArray, values: FloatArray) -> FloatArray:
     """Linear interpolation of each column of ``values`` (rows at ``t_rows``) at ``t``."""
     return np.column_stack([np.interp(t, t_rows, values[:, k]) for k in range(values.shape[1])])
@@ -246,7 +235,6 @@ def drive_section(work: Path) -> Section:
     rec = recordings[DEFAULT_IMU_LAG_S]
     assert rec.truth is not None and rec.position is not None
     t_last = float(rec.position.t[-1]) - 1.0
-    zupt_missing = plugin_available("zupt")
     notes: list[str] = []
 
     drifts: dict[tuple[str, float], list[float]] = {}
@@ -255,8 +243,6 @@ def drive_section(work: Path) -> Section:
     windows_of = {d: outage_windows(d, FIRST_OUTAGE_S, t_last) for d in OUTAGE_DURATIONS_S}
     zupt_run: RunResult | None = None
     for variant in DRIVE_VARIANTS:
-        if "zupt" in variant.enable and zupt_missing:
-            continue
         config = config_variant("real_drive", enable=variant.enable)
         for d, windows in windows_of.items():
             result = run_engine(config, withhold_fixes(rec, windows))
@@ -265,8 +251,6 @@ def drive_section(work: Path) -> Section:
             solutions[variant.label, d] = result.solution
             if variant.enable == ("zupt",) and d == 30.0:
                 zupt_run = result
-    if zupt_missing:
-        notes.append(f"ZUPT columns empty: plugin `zupt` not available ({zupt_missing}).")
 
     header = ["outage", "windows"] + [v.label for v in DRIVE_VARIANTS]
     rows = []
@@ -546,10 +530,6 @@ def pyshoe_section(work: Path) -> Section:
     if not folder.exists():
         sec.text = f"Skipped: dataset folder {folder} not found."
         return sec
-    missing = plugin_available("zupt")
-    if missing:
-        sec.text = f"Not run: plugin `zupt` not available ({missing})."
-        return sec
     from fusion.earth import normal_gravity
     from plugins.zupt import StationaryThresholds, default_thresholds, detect_stationary
 
@@ -726,7 +706,6 @@ def broad_section(work: Path) -> Section:
     if not folder.exists():
         sec.text = f"Skipped: dataset folder {folder} not found."
         return sec
-    missing = plugin_available("magnetometer")
     trials = json.loads((folder / "trials.json").read_text())["trials"]
     rows = []
     rmse: dict[tuple[str, str], float] = {}
@@ -743,9 +722,6 @@ def broad_section(work: Path) -> Section:
         row = [src.stem, group]
         suspect, isolated = "–", "–"
         for label, make in BROAD_FILTERS:
-            if missing and "magnetometer" in label:
-                row.append("n/a")
-                continue
             try:
                 result = run_engine(make(), rec)
             except Exception as exc:  # reported in the table, not hidden
@@ -826,11 +802,6 @@ def broad_section(work: Path) -> Section:
             "",
             *[f"- {name}: {result} ({detail})" for name, result, detail in checks],
             *([""] + [f"- run failed: {f}" for f in failures] if failures else []),
-            *(
-                ["", f"Magnetometer columns empty: plugin not available ({missing})."]
-                if missing
-                else []
-            ),
             "",
             f"![broad]({figure.relative_to(HERE)})",
         ]
