@@ -22,7 +22,7 @@ examples:
 """
 
 DEFAULT_DEMO_SCENARIO = "seed000-carrier"
-DEFAULT_DEMO_CONFIG = "sins_od_zupt_cpoem_rts"
+DEFAULT_DEMO_CONFIG = "sins_od_cpoem_rts"
 
 
 class _Progress:

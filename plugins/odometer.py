@@ -25,6 +25,13 @@ in the options on the IMU clock and owns only δα. The odometer lever arm is ne
 shearer turns at < 0.1°/s, so ω × l is below 1 mm/s for a lever arm of a metre).
 δα_y does not enter any row (a rotation about the travel direction leaves v^m unchanged), so its
 σ stays at its prior — the seed's observability analysis (§3.3).
+
+Zero angular rate at standstill (option ``zero_angular_rate``, mode ``odometer``): while every
+odometer reading of the past ``rest_guard_s`` is within 3σ of zero the machine stands, and the
+gyro mean since the previous reading is the earth rate plus the bias (:mod:`plugins.zaru`). The
+encoder knows a stop the moment it begins, without the IMU detector's lag; this is the static
+gyro calibration a MEMS alignment starts with, repeated at every stop, and the only thing that
+observes the vertical gyro bias before the heading has drifted on a slow, straight machine.
 """
 
 from __future__ import annotations
@@ -32,13 +39,15 @@ from __future__ import annotations
 from typing import Literal
 
 import numpy as np
+import scipy.linalg
 from numpy.typing import NDArray
-from pydantic import Field
+from pydantic import Field, model_validator
 
 from fusion.attitude import dcm_from_euler, skew
 from fusion.error_model import ATTITUDE, VELOCITY, StateBlock
 from fusion.plugin import Measurement, MeasurementContext, Plugin, PluginOptions
 from fusion.recording import Recording
+from plugins.zaru import ZeroAngularRate
 
 
 class OdometerOptions(PluginOptions):
@@ -54,6 +63,19 @@ class OdometerOptions(PluginOptions):
     mounting_sigma_deg: float = Field(2.0, gt=0, description="prior σ of each δα")
     scale_sigma: float = Field(0.03, gt=0, description="prior σ of δk_D")
     constraint_rate_hz: float = Field(10.0, gt=0, description="motion_constraint mode only")
+    zero_angular_rate: bool = Field(
+        False, description="ZARU while the odometer shows standstill (mode odometer only)"
+    )
+    rest_guard_s: float = Field(1.0, ge=0, description="standstill this long before a ZARU")
+    angular_rate_floor_dps: float = Field(
+        0.002, ge=0, description="ZARU noise added to the averaged ARW (standstill vibration)"
+    )
+
+    @model_validator(mode="after")
+    def _zero_rate_needs_odometer(self) -> OdometerOptions:
+        if self.zero_angular_rate and self.mode != "odometer":
+            raise ValueError("zero_angular_rate needs mode: odometer (the encoder shows the stops)")
+        return self
 
 
 class Odometer(Plugin):
@@ -81,6 +103,24 @@ class Odometer(Plugin):
             )[self.rows]
             ** 2
         )
+        self.zero_rate = (
+            ZeroAngularRate(recording, options.angular_rate_floor_dps, name)
+            if options.zero_angular_rate
+            else None
+        )
+        self.at_rest = self._standstill() if self.zero_rate is not None else np.empty(0, bool)
+
+    def _standstill(self) -> NDArray[np.bool_]:
+        """Readings preceded by ``rest_guard_s`` of readings within 3σ of zero (this one too)."""
+        assert self.recording.odometer is not None
+        t = self.recording.odometer.t
+        moving = np.abs(self.speed) >= 3.0 * self.options.sigma_speed_mps
+        span = round(self.options.rest_guard_s / float(np.median(np.diff(t))))
+        moved = np.concatenate([[0], np.cumsum(moving)])
+        first = np.maximum(np.arange(t.size) - span, 0)
+        rest: NDArray[np.bool_] = (moved[1:] - moved[first]) == 0
+        rest[: max(span, 1)] = False  # no interval before the first reading, no past to check
+        return rest
 
     def state_blocks(self) -> tuple[StateBlock, ...]:
         """Mounting angles δα (3) and, with an odometer, its scale factor error δk_D."""
@@ -101,6 +141,20 @@ class Odometer(Plugin):
         return np.arange(t[0], t[-1], 1.0 / self.options.constraint_rate_hz)[1:]
 
     def measure(self, index: int, ctx: MeasurementContext) -> Measurement:
+        """Residual of the SINS velocity in m against the odometer and the constraint, plus
+        the zero angular rate at a standstill if configured."""
+        velocity = self._velocity(index, ctx)
+        if self.zero_rate is None or not self.at_rest[index]:
+            return velocity
+        t = self.recording.odometer.t  # type: ignore[union-attr]
+        z, h, r = self.zero_rate.rows(t[index - 1], t[index], ctx)
+        return Measurement(
+            np.concatenate([velocity.z, z]),
+            np.vstack([velocity.H, h]),
+            scipy.linalg.block_diag(velocity.R, r),
+        )
+
+    def _velocity(self, index: int, ctx: MeasurementContext) -> Measurement:
         """Residual of the SINS velocity in m against the odometer and the constraint."""
         c_n_b = ctx.c_b_n.T
         c_n_m = self.c_b_m @ c_n_b

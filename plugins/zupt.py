@@ -45,15 +45,8 @@ velocity noise accumulates between two 10 Hz updates; on a real face with the co
 running, set it to the measured standstill vibration velocity.
 
 Zero angular rate (ZARU, option ``zero_angular_rate``): at a ZUPT epoch the machine does not
-turn either, so the mean gyro output ω̄ over the interval since the previous epoch, minus the
-bias the SINS removes (``ctx.gyro_bias`` = b̂, with the error state ε = b − b̂), is the earth
-rate seen in the body frame. With ``C̃_n^b = C_n^b (I + φ×)``::
-
-    z = ω̄ − b̂ − C̃_n^b ω_ieⁿ = ε + C̃_n^b (ω_ieⁿ×) φ + n,    R = (N_g² f_s / N + σ_floor²) I₃
-
-(N_g the datasheet ARW, N samples at f_s, σ_floor the standstill vibration). It makes every gyro
-bias observable at rest — the vertical one included, which no velocity update reaches — so a
-static start learns a large turn-on bias before the heading has run away with it.
+turn either, so the gyro mean since the previous epoch is the earth rate plus the bias
+(:mod:`plugins.zaru`): every gyro bias, the vertical one included, becomes observable at rest.
 
 Epochs and delay: epochs are a regular grid at ``update_rate_hz`` on the IMU clock; the epoch at
 ``t`` uses the label of the last IMU sample at or before ``t``. In causal mode that label is
@@ -88,12 +81,12 @@ from pydantic import Field, field_validator, model_validator
 from scipy.ndimage import median_filter, minimum_filter1d
 from scipy.stats import chi2, norm
 
-from fusion.attitude import skew
 from fusion.earth import OMEGA_IE, normal_gravity
-from fusion.error_model import ATTITUDE, GYRO_BIAS, VELOCITY, ImuNoise, StateBlock
+from fusion.error_model import VELOCITY, ImuNoise, StateBlock
 from fusion.plugin import Measurement, MeasurementContext, Plugin, PluginOptions
 from fusion.recording import ImuSpec, Recording
 from plugins.odometer import Odometer, OdometerOptions
+from plugins.zaru import ZeroAngularRate
 
 BIAS_COVERAGE = 0.999
 """Probability with which the threshold band covers the constant IMU biases."""
@@ -273,14 +266,11 @@ class Zupt(Plugin):
         sample = np.searchsorted(imu.t, self._epochs, side="right") - 1
         self.zupt_epoch = self.usable[sample]
         self.variance = options.sigma_zero_velocity_mps**2
-        self.rate = rate
-        spec = recording.meta.imu.spec
-        if options.zero_angular_rate and (spec is None or spec.gyro_arw_deg_rth is None):
-            raise ValueError(
-                "zero_angular_rate needs meta.yaml imu.spec.gyro_arw_deg_rth (its noise)"
-            )
-        arw_deg_rth = spec.gyro_arw_deg_rth if spec is not None else None
-        self.arw = math.radians(arw_deg_rth) / 60.0 if arw_deg_rth is not None else 0.0
+        self.zero_rate = (
+            ZeroAngularRate(recording, options.angular_rate_floor_dps, name)
+            if options.zero_angular_rate
+            else None
+        )
         self.constraint = (
             Odometer(name, options.motion_constraint, recording)
             if options.motion_constraint is not None
@@ -322,35 +312,12 @@ class Zupt(Plugin):
         h = np.zeros((3, ctx.layout.dim))
         h[:, ctx.layout.slice(VELOCITY)] = np.eye(3)
         zupt = Measurement(ctx.velocity.copy(), h, np.eye(3) * self.variance)
-        if not self.options.zero_angular_rate:
+        if self.zero_rate is None:
             return zupt
-        z_rate, h_rate, r_rate = self._zero_angular_rate(index, ctx)
+        t = self._epochs[index]
+        z_rate, h_rate, r_rate = self.zero_rate.rows(t - 1.0 / self.options.update_rate_hz, t, ctx)
         return Measurement(
             np.concatenate([zupt.z, z_rate]),
             np.vstack([zupt.H, h_rate]),
             scipy.linalg.block_diag(zupt.R, r_rate),
         )
-
-    def _zero_angular_rate(
-        self, index: int, ctx: MeasurementContext
-    ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
-        """ZARU: the gyro mean since the previous epoch, minus the removed bias, against the
-        earth rate seen by the SINS attitude (see the module docstring)."""
-        imu = self.recording.imu
-        t = self._epochs[index]
-        rows = slice(
-            np.searchsorted(imu.t, t - 1.0 / self.options.update_rate_hz, side="right"),
-            np.searchsorted(imu.t, t, side="right"),
-        )
-        count = rows.stop - rows.start
-        c_n_b = ctx.c_b_n.T
-        w_ie = OMEGA_IE * np.array([0.0, np.cos(ctx.lat), np.sin(ctx.lat)])
-        z = imu.gyro[rows].mean(axis=0) - ctx.gyro_bias - c_n_b @ w_ie
-        h = np.zeros((3, ctx.layout.dim))
-        h[:, ctx.layout.slice(GYRO_BIAS)] = np.eye(3)
-        h[:, ctx.layout.slice(ATTITUDE)] = c_n_b @ skew(w_ie)
-        variance = (
-            self.arw**2 * self.rate / max(count, 1)
-            + np.radians(self.options.angular_rate_floor_dps) ** 2
-        )
-        return z, h, np.eye(3) * variance

@@ -2,12 +2,24 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
+import pytest
 
 from fusion.attitude import dcm_from_euler, dcm_from_quat, quat_from_rotvec
-from fusion.recording import OdometerData, Recording
+from fusion.config import parse_config
+from fusion.engine import Engine
+from fusion.recording import OdometerData, OdometerMeta, Recording
 from plugins.odometer import Odometer, OdometerOptions
-from tests.plugin_support import layout_with, perturbed_context, recording_meta, still_imu
+from tests.plugin_support import (
+    SEED002_SPEC,
+    layout_with,
+    perturbed_context,
+    recording_meta,
+    static_recording,
+    still_imu,
+)
 
 
 def _recording(speed: float) -> Recording:
@@ -67,3 +79,39 @@ def test_h_matches_numerical_differentiation() -> None:
     # is unobservable): H_δα v^b = −C_b^m (v^b × v^b) = 0.
     v_b = c_b_m_nominal.T @ v_m_true
     np.testing.assert_allclose(h[:, 15:18] @ v_b, 0.0, atol=1e-15)
+
+
+def test_zero_angular_rate_at_odometer_standstill() -> None:
+    """With ``zero_angular_rate`` the encoder's stops carry a ZARU: on a static start with an
+    MTi-G-700's 720 °/h turn-on bias the gyro biases, vertical included, are learned and the
+    heading holds (it would drift 6° in 30 s); a reading beyond 3σ of zero, and the guard
+    time after it, carry no ZARU rows."""
+    bias = np.radians([0.05, -0.12, 0.2])  # rad/s: 180, 430, 720 °/h
+    rec = static_recording(spec={**SEED002_SPEC, "gyro_bias_deg_h": 720.0})
+    rng = np.random.default_rng(1)
+    t = np.arange(1, 301) / 10.0
+    speed = 0.001 * rng.standard_normal(t.size)  # encoder noise at rest, well inside 3σ
+    speed[150] = 0.05  # one reading the plugin must take as motion
+    rec = replace(
+        rec,
+        meta=rec.meta.model_copy(update={"odometer": OdometerMeta(rate_hz=10.0)}),
+        imu=replace(rec.imu, gyro=rec.imu.gyro + bias),
+        odometer=OdometerData(t=t, speed=speed),
+    )
+    options = {"zero_angular_rate": True, "sigma_speed_mps": 0.003}
+    plugin = Odometer("odometer", OdometerOptions.model_validate(options), rec)
+    assert not plugin.at_rest[:10].any() and plugin.at_rest[10:150].all()
+    assert not plugin.at_rest[150:161].any() and plugin.at_rest[161:].all()
+    layout = layout_with(plugin.state_blocks())
+    ctx = replace(perturbed_context(layout, np.zeros(layout.dim)), gyro_bias=np.zeros(3))
+    assert plugin.measure(155, ctx).z.shape == (3,)
+    assert plugin.measure(100, ctx).z.shape == (6,)
+
+    config = parse_config({"name": "zaru", "plugins": [{"type": "odometer", **options}]})
+    result = Engine(config, rec).run()
+    estimate, sigma = result.state_estimate("gyro_bias")
+    assert np.all(np.abs(estimate - bias) < 3 * sigma)
+    assert np.all(np.degrees(sigma) * 3600 < 20.0)  # °/h, from 0.2 °/s
+    assert abs(np.degrees(result.solution.attitude[-1, 2])) < 0.1
+    with pytest.raises(ValueError, match="zero_angular_rate needs mode: odometer"):
+        OdometerOptions(mode="motion_constraint", zero_angular_rate=True)

@@ -24,24 +24,19 @@ from fusion.engine import Engine, RunResult
 from fusion.error_model import G0
 from fusion.metrics import interpolate_truth
 from fusion.plugin import Measurement, PluginError, create_plugin
-from fusion.recording import ImuData, Recording, read_recording
+from fusion.recording import Recording, read_recording
 from fusion.sim.simulate import simulate
 from plugins.zupt import Zupt, default_thresholds, detect_stationary, window_samples
 from tests.plugin_support import (
+    SEED002_SPEC,
     layout_with,
     normalized_errors,
     numerical_jacobian,
     perturbed_context,
-    recording_meta,
+    static_recording,
 )
 
 CONFIGS = Path(__file__).resolve().parents[1] / "configs"
-SPEC = {  # seed 002 Table 1, as the simulator's "seed002-mems" grade writes it to meta.yaml
-    "gyro_bias_deg_h": 3.0,
-    "gyro_arw_deg_rth": 0.0433,
-    "accel_bias_mg": 1.0,
-    "accel_vrw_mg_rthz": 0.0144,
-}
 SHORT = (  # seed002-rectangle in 2 min: a 6 m × 3 m lap with its three random stops
     "static_start_s=20",
     "duration_s=120",
@@ -50,39 +45,13 @@ SHORT = (  # seed002-rectangle in 2 min: a 6 m × 3 m lap with its three random 
 N_SEEDS = 20
 
 
-def _static_recording(
-    gyro_bias_rps: float = 0.0,
-    accel_bias_mps2: float = 0.0,
-    spec: dict[str, float] | None = SPEC,
-    seed: int = 0,
-) -> Recording:
-    """30 s of a level IMU at rest at 34°N sampled at 100 Hz: gravity and earth rate, the
-    datasheet white noise of ``SPEC``, a constant gyro bias along x and accelerometer bias
-    along z (the axis that shifts ‖f‖)."""
-    lat, rate = math.radians(34.0), 100.0
-    meta = recording_meta(imu={"rate_hz": rate, **({"spec": spec} if spec is not None else {})})
-    n = 3000
-    rng = np.random.default_rng(seed)
-    w_ie = earth.OMEGA_IE * np.array([0.0, math.cos(lat), math.sin(lat)])
-    gyro = w_ie + np.array([gyro_bias_rps, 0.0, 0.0])
-    gyro = gyro + math.radians(SPEC["gyro_arw_deg_rth"]) / 60.0 * math.sqrt(rate) * (
-        rng.standard_normal((n, 3))
-    )
-    f = [0.0, 0.0, float(earth.normal_gravity(lat, 40.0)) + accel_bias_mps2]
-    accel = f + SPEC["accel_vrw_mg_rthz"] * 1e-3 * G0 * math.sqrt(rate) * (
-        rng.standard_normal((n, 3))
-    )
-    t = np.arange(1, n + 1) / rate
-    return Recording(path=None, meta=meta, imu=ImuData(t=t, gyro=gyro, accel=accel))
-
-
 # ------------------------------------------------------------------------------------------
 # measurement model
 
 
 def test_h_matches_numerical_differentiation() -> None:
     """z(δx) = ṽ − 0 through a perturbed SINS state; H = [I, 0, …] on the velocity error."""
-    plugin = Zupt("zupt", Zupt.Options(), _static_recording())
+    plugin = Zupt("zupt", Zupt.Options(), static_recording())
     assert plugin.zupt_epoch.all()
     layout = layout_with(plugin.state_blocks())
     c_b_n = dcm_from_euler(0.02, -0.01, 1.3)
@@ -105,7 +74,7 @@ def test_zero_angular_rate_h_and_bias_estimate() -> None:
     as the nominal bias b − ε), then a static run: the gyro bias, vertical axis included, is
     learned to the averaged-ARW level and the heading holds (it would drift at 720 °/h)."""
     bias = np.radians([0.05, -0.12, 0.2])  # rad/s: 180, 430, 720 °/h
-    rec = _static_recording(spec={**SPEC, "gyro_bias_deg_h": 720.0})  # an MTi-G-700's figure
+    rec = static_recording(spec={**SEED002_SPEC, "gyro_bias_deg_h": 720.0})  # an MTi-G-700's figure
     rec = replace(rec, imu=replace(rec.imu, gyro=rec.imu.gyro + bias))
     plugin = Zupt("zupt", Zupt.Options(zero_angular_rate=True, angular_rate_floor_dps=0.0), rec)
     layout = layout_with(plugin.state_blocks())
@@ -135,7 +104,7 @@ def test_zero_angular_rate_h_and_bias_estimate() -> None:
 def test_motion_constraint_while_moving() -> None:
     """Eq. 18: a moving epoch gives the odometer plugin's motion constraint (lateral and
     vertical velocity in the machine frame, over the mounting angles this plugin then owns)."""
-    rec = _static_recording()
+    rec = static_recording()
     rec.imu.gyro[1000:1500, 2] += 0.05  # a turn at 2.9 °/s between 10 and 15 s
     plugin = Zupt("zupt", Zupt.Options(motion_constraint={}), rec)
     assert [b.name for b in plugin.state_blocks()] == ["zupt.mounting_angles"]
@@ -166,9 +135,9 @@ def test_default_thresholds_cover_the_datasheet_biases(
     """At rest with constant biases up to the 99.9 % coverage of their datasheet σ the median
     filtered labels are stationary throughout; the raw per-sample labels are not (the band
     covers the white noise of one sample only at 90 %: the median filter removes the rest)."""
-    rec = _static_recording(
-        gyro_bias_sigmas * math.radians(SPEC["gyro_bias_deg_h"]) / 3600.0,
-        accel_bias_sigmas * SPEC["accel_bias_mg"] * 1e-3 * G0,
+    rec = static_recording(
+        gyro_bias_sigmas * math.radians(SEED002_SPEC["gyro_bias_deg_h"]) / 3600.0,
+        accel_bias_sigmas * SEED002_SPEC["accel_bias_mg"] * 1e-3 * G0,
     )
     g = float(earth.normal_gravity(math.radians(34.0), 40.0))
     thresholds = default_thresholds(rec.meta.imu.spec, 100.0, g)  # type: ignore[arg-type]
@@ -262,7 +231,7 @@ def test_detector_agreement_over_seeds(tmp_path_factory: pytest.TempPathFactory)
 
 
 def test_bad_options_and_missing_spec_are_named() -> None:
-    rec = _static_recording()
+    rec = static_recording()
     with pytest.raises(PluginError, match=r"plugins\[0\].*accel_min_mps2 .* must be below"):
         create_plugin(
             "zupt", "z", {"accel_min_mps2": 9.9, "accel_max_mps2": 9.7}, rec, ("plugins", 0)
@@ -271,7 +240,7 @@ def test_bad_options_and_missing_spec_are_named() -> None:
         create_plugin("zupt", "z", {"motion_constraint": {"mode": "odometer"}}, rec, ("plugins", 0))
     with pytest.raises(PluginError, match=r"window_sec.*did you mean 'window_s'"):
         create_plugin("zupt", "z", {"window_sec": 1.0}, rec, ("plugins", 0))
-    no_spec = _static_recording(spec=None)
+    no_spec = static_recording(spec=None)
     with pytest.raises(ValueError, match=r"imu\.spec.*gyro_max_dps"):
         Zupt("z", Zupt.Options(), no_spec)
     given = {"accel_min_mps2": 9.7, "accel_max_mps2": 9.9, "gyro_max_dps": 0.05}

@@ -1,0 +1,71 @@
+"""Zero angular rate update (ZARU) at a standstill, shared by the ``zupt`` and ``odometer``
+plugins.
+
+A machine that stands does not turn, so the mean gyro output ω̄ over an interval of N samples at
+rate f_s, minus the bias the SINS removes (``ctx.gyro_bias`` = b̂, with the error state
+ε = b − b̂), is the earth rate seen in the body frame. With ``C̃_n^b = C_n^b (I + φ×)``::
+
+    z = ω̄ − b̂ − C̃_n^b ω_ieⁿ = ε + C̃_n^b (ω_ieⁿ×) φ + n,    R = (N_g² f_s / N + σ_floor²) I₃
+
+(N_g the datasheet angle random walk, σ_floor the standstill vibration). It makes every gyro
+bias observable at rest — the vertical one included, which no velocity update reaches — so a
+static start learns a large turn-on bias (an MTi-G-700's 720 °/h) before the heading has run
+away with it: the static gyro calibration every MEMS alignment begins with.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numpy.typing import NDArray
+
+from fusion.attitude import skew
+from fusion.earth import OMEGA_IE
+from fusion.error_model import ATTITUDE, GYRO_BIAS
+from fusion.plugin import MeasurementContext
+from fusion.recording import Recording
+
+
+class ZeroAngularRate:
+    """The ZARU rows over an interval of the recording's IMU samples.
+
+    Parameters
+    ----------
+    recording
+        Supplies the IMU samples and ``meta.yaml`` ``imu.spec.gyro_arw_deg_rth`` (the noise).
+    floor_dps
+        Standstill vibration added to the averaged ARW, 1σ in deg/s.
+    owner
+        Plugin name for the error raised when the datasheet ARW is missing.
+    """
+
+    def __init__(self, recording: Recording, floor_dps: float, owner: str) -> None:
+        spec = recording.meta.imu.spec
+        if spec is None or spec.gyro_arw_deg_rth is None:
+            raise ValueError(
+                f"plugin {owner!r}: zero_angular_rate needs meta.yaml imu.spec.gyro_arw_deg_rth"
+                " (its noise)"
+            )
+        self.imu = recording.imu
+        self.arw = math.radians(spec.gyro_arw_deg_rth) / 60.0
+        self.rate = 1.0 / float(np.median(np.diff(self.imu.t)))
+        self.floor = math.radians(floor_dps)
+
+    def rows(
+        self, t_start: float, t_end: float, ctx: MeasurementContext
+    ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+        """``(z, H, R)`` from the IMU samples in ``(t_start, t_end]`` (module docstring)."""
+        samples = slice(
+            np.searchsorted(self.imu.t, t_start, side="right"),
+            np.searchsorted(self.imu.t, t_end, side="right"),
+        )
+        count = max(int(samples.stop - samples.start), 1)
+        c_n_b = ctx.c_b_n.T
+        w_ie = OMEGA_IE * np.array([0.0, np.cos(ctx.lat), np.sin(ctx.lat)])
+        z = self.imu.gyro[samples].mean(axis=0) - ctx.gyro_bias - c_n_b @ w_ie
+        h = np.zeros((3, ctx.layout.dim))
+        h[:, ctx.layout.slice(GYRO_BIAS)] = np.eye(3)
+        h[:, ctx.layout.slice(ATTITUDE)] = c_n_b @ skew(w_ie)
+        variance = self.arw**2 * self.rate / count + self.floor**2
+        return z, h, np.eye(3) * variance
