@@ -23,6 +23,7 @@ from importlib.metadata import entry_points
 from typing import Any, ClassVar
 
 import numpy as np
+import scipy.linalg
 from numpy.typing import NDArray
 from pydantic import BaseModel, ConfigDict, ValidationError
 
@@ -53,6 +54,15 @@ class Measurement:
     """The plugin's own fault indicator flags this epoch (e.g. a magnetic field whose norm or
     dip is off the expected earth field). The centralized filter logs it; the federated master
     counts it toward isolating the plugin's local filter."""
+
+    def stacked_with(self, other: Measurement) -> Measurement:
+        """This measurement and ``other`` as one (rows appended, independent noise)."""
+        return Measurement(
+            np.concatenate([self.z, other.z]),
+            np.vstack([self.H, other.H]),
+            scipy.linalg.block_diag(self.R, other.R),
+            self.suspect or other.suspect,
+        )
 
 
 @dataclass(frozen=True)

@@ -39,7 +39,6 @@ from __future__ import annotations
 from typing import Literal
 
 import numpy as np
-import scipy.linalg
 from numpy.typing import NDArray
 from pydantic import Field, model_validator
 
@@ -96,6 +95,7 @@ class Odometer(Plugin):
         # C_b^m from the mounting angles in the recording's attitude convention (m relative to b).
         self.c_b_m = dcm_from_euler(r, p, y).T
         self.speed = recording.odometer.speed if recording.odometer is not None else np.empty(0)
+        self.still = np.abs(self.speed) < 3.0 * options.sigma_speed_mps  # within 3σ of zero
         self.rows = np.array([0, 1, 2]) if self.use_speed else np.array([0, 2])
         self.variance = (
             np.array(
@@ -114,7 +114,7 @@ class Odometer(Plugin):
         """Readings preceded by ``rest_guard_s`` of readings within 3σ of zero (this one too)."""
         assert self.recording.odometer is not None
         t = self.recording.odometer.t
-        moving = np.abs(self.speed) >= 3.0 * self.options.sigma_speed_mps
+        moving = ~self.still
         span = round(self.options.rest_guard_s / float(np.median(np.diff(t))))
         moved = np.concatenate([[0], np.cumsum(moving)])
         first = np.maximum(np.arange(t.size) - span, 0)
@@ -147,12 +147,7 @@ class Odometer(Plugin):
         if self.zero_rate is None or not self.at_rest[index]:
             return velocity
         t = self.recording.odometer.t  # type: ignore[union-attr]
-        z, h, r = self.zero_rate.rows(t[index - 1], t[index], ctx)
-        return Measurement(
-            np.concatenate([velocity.z, z]),
-            np.vstack([velocity.H, h]),
-            scipy.linalg.block_diag(velocity.R, r),
-        )
+        return velocity.stacked_with(self.zero_rate.measure(t[index - 1], t[index], ctx))
 
     def _velocity(self, index: int, ctx: MeasurementContext) -> Measurement:
         """Residual of the SINS velocity in m against the odometer and the constraint."""
@@ -181,8 +176,8 @@ class Odometer(Plugin):
         the scale and mounting estimates the same way (at standstill the scale walked to −0.05
         against a true +0.01).
         """
-        speed = self.speed[max(index - 1, 0)]
-        if abs(speed) < 3.0 * self.options.sigma_speed_mps:
+        previous = max(index - 1, 0)
+        if self.still[previous]:
             return 0.0
         scale = ctx.x[ctx.layout.slice(f"{self.name}.scale_error")][0]
-        return float(speed / (1.0 + scale))
+        return float(self.speed[previous] / (1.0 + scale))

@@ -18,12 +18,11 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numpy.typing import NDArray
 
 from fusion.attitude import skew
 from fusion.earth import OMEGA_IE
 from fusion.error_model import ATTITUDE, GYRO_BIAS
-from fusion.plugin import MeasurementContext
+from fusion.plugin import Measurement, MeasurementContext
 from fusion.recording import Recording
 
 
@@ -52,10 +51,8 @@ class ZeroAngularRate:
         self.rate = 1.0 / float(np.median(np.diff(self.imu.t)))
         self.floor = math.radians(floor_dps)
 
-    def rows(
-        self, t_start: float, t_end: float, ctx: MeasurementContext
-    ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
-        """``(z, H, R)`` from the IMU samples in ``(t_start, t_end]`` (module docstring)."""
+    def measure(self, t_start: float, t_end: float, ctx: MeasurementContext) -> Measurement:
+        """The ZARU from the IMU samples in ``(t_start, t_end]`` (module docstring)."""
         samples = slice(
             np.searchsorted(self.imu.t, t_start, side="right"),
             np.searchsorted(self.imu.t, t_end, side="right"),
@@ -68,4 +65,4 @@ class ZeroAngularRate:
         h[:, ctx.layout.slice(GYRO_BIAS)] = np.eye(3)
         h[:, ctx.layout.slice(ATTITUDE)] = c_n_b @ skew(w_ie)
         variance = self.arw**2 * self.rate / count + self.floor**2
-        return z, h, np.eye(3) * variance
+        return Measurement(z, h, np.eye(3) * variance)

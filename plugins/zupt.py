@@ -75,7 +75,6 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-import scipy.linalg
 from numpy.typing import NDArray
 from pydantic import Field, field_validator, model_validator
 from scipy.ndimage import median_filter, minimum_filter1d
@@ -315,9 +314,6 @@ class Zupt(Plugin):
         if self.zero_rate is None:
             return zupt
         t = self._epochs[index]
-        z_rate, h_rate, r_rate = self.zero_rate.rows(t - 1.0 / self.options.update_rate_hz, t, ctx)
-        return Measurement(
-            np.concatenate([zupt.z, z_rate]),
-            np.vstack([zupt.H, h_rate]),
-            scipy.linalg.block_diag(zupt.R, r_rate),
+        return zupt.stacked_with(
+            self.zero_rate.measure(t - 1.0 / self.options.update_rate_hz, t, ctx)
         )
