@@ -154,12 +154,11 @@ def _at_most(epochs: NDArray[np.float64], rate: float | None) -> NDArray[np.bool
     if rate is None:
         return np.ones(epochs.size, dtype=bool)
     times = np.unique(epochs)
-    kept = np.zeros(times.size, dtype=bool)
-    next_time = -np.inf
-    for k, t in enumerate(times):
-        if t >= next_time - 1e-9:
-            kept[k] = True
-            next_time = t + 1.0 / rate
+    kept = []
+    k = 0
+    while k < times.size:  # one step per kept time: the next one at least 1/rate later
+        kept.append(k)
+        k = int(np.searchsorted(times, times[k] + 1.0 / rate - 1e-9))
     return np.isin(epochs, times[kept])
 
 
