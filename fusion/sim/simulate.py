@@ -28,7 +28,7 @@ from __future__ import annotations
 
 import math
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import IO, Any
 
@@ -185,32 +185,8 @@ def simulate(
     exact = ExactImu(traj, frame, sc.imu.rate_hz, sc.imu.quadrature_nodes, c_b_m=mounting)
     imu_model = sc.imu.error_model
     imu_sim = ImuErrorSimulator(imu_model, sc.imu.rate_hz, stream_rng(seed, "imu"), sc.faults)
-    odo_sim = (
-        OdometerSimulator(sc.odometer, stream_rng(seed, "odometer"), sc.faults)
-        if sc.odometer is not None
-        else None
-    )
-    mag_sim = (
-        MagnetometerSimulator(sc.magnetometer, stream_rng(seed, "magnetometer"), sc.faults)
-        if sc.magnetometer is not None
-        else None
-    )
     uwb_model = _uwb_model(sc, traj)
-    uwb_sim = (
-        UwbSimulator(uwb_model, stream_rng(seed, "uwb"), sc.faults)
-        if uwb_model is not None
-        else None
-    )
-    sup_sim = (
-        SupportSimulator(sc.support, stream_rng(seed, "support"), sc.faults)
-        if sc.support is not None
-        else None
-    )
-    pos_sim = (
-        PositionFixSimulator(sc.position, stream_rng(seed, "position"), sc.faults)
-        if sc.position is not None
-        else None
-    )
+    aiding = _aiding_streams(sc, seed, traj, uwb_model)
     truth_step = 1
     if sc.imu.truth_rate_hz is not None:
         truth_step = round(sc.imu.rate_hz / sc.imu.truth_rate_hz)
@@ -219,19 +195,9 @@ def simulate(
         "imu": _CsvAppender(out / "imu.csv", "imu", "fffffff"),
         "truth": _CsvAppender(out / "truth.csv", "truth", "ffffffffffi"),
     }
-    if odo_sim is not None:
-        files["odometer"] = _CsvAppender(out / "odometer.csv", "odometer", "ff")
-    if mag_sim is not None:
-        files["magnetometer"] = _CsvAppender(out / "magnetometer.csv", "magnetometer", "ffff")
-    if uwb_sim is not None:
-        files["uwb"] = _CsvAppender(out / "uwb.csv", "uwb", "fsf")
-    if sup_sim is not None:
-        files["support"] = _CsvAppender(out / "support.csv", "support", "ff")
-    if pos_sim is not None:
-        files["position"] = _CsvAppender(out / "position.csv", "position", "fffffff")
+    for name, (formats, _) in aiding.items():
+        files[name] = _CsvAppender(out / f"{name}.csv", name, formats)
 
-    push_t = np.array([e.t for e in traj.push_events])
-    push_d = np.array([e.advance for e in traj.push_events])
     first: TruthChunk | None = None
     t_prev = -math.inf
     started = time.perf_counter()
@@ -252,23 +218,8 @@ def simulate(
                     tc.cycle[sel],
                 ]
             )
-            if odo_sim is not None:
-                to, speed = odo_sim.apply(tc)
-                files["odometer"].append([to, speed])
-            if mag_sim is not None:
-                tm, field = mag_sim.apply(tc)
-                files["magnetometer"].append([tm, *field.T])
-            if uwb_sim is not None and uwb_model is not None:
-                tu, idx, rng_m = uwb_sim.apply(tc)
-                names = np.asarray(uwb_model.anchor_ids, dtype=object)[idx]
-                files["uwb"].append([tu, names, rng_m])
-            if sup_sim is not None:
-                sel_p = (push_t > t_prev) & (push_t <= tc.t[-1])
-                ts, adv = sup_sim.apply(push_t[sel_p], push_d[sel_p])
-                files["support"].append([ts, adv])
-            if pos_sim is not None:
-                tp, enu, sig = pos_sim.apply(tc)
-                files["position"].append([tp, *enu.T, *sig.T])
+            for name, (_, columns) in aiding.items():
+                files[name].append(columns(tc, t_prev))
             t_prev = float(tc.t[-1])
             if verbose:
                 print(
@@ -283,6 +234,57 @@ def simulate(
     meta = _meta(sc, seed, traj, first, imu_sim, uwb_model)
     (out / "meta.yaml").write_text(rec.meta_yaml_text(meta), encoding="utf-8")
     return out
+
+
+StreamColumns = Callable[[TruthChunk, float], list[Any]]
+"""The CSV columns of one aiding stream for a truth chunk (and the end of the previous one)."""
+
+
+def _aiding_streams(
+    sc: Scenario, seed: int, traj: Trajectory, uwb_model: UwbModel | None
+) -> dict[str, tuple[str, StreamColumns]]:
+    """The optional sensors the scenario has: file stem → (column formats, columns of a chunk),
+    each simulator with its own random stream."""
+    streams: dict[str, tuple[str, StreamColumns]] = {}
+    if sc.odometer is not None:
+        odo = OdometerSimulator(sc.odometer, stream_rng(seed, "odometer"), sc.faults)
+        streams["odometer"] = ("ff", lambda tc, _: list(odo.apply(tc)))
+    if sc.magnetometer is not None:
+        mag = MagnetometerSimulator(sc.magnetometer, stream_rng(seed, "magnetometer"), sc.faults)
+
+        def magnetometer(tc: TruthChunk, _: float) -> list[Any]:
+            t, field = mag.apply(tc)
+            return [t, *field.T]
+
+        streams["magnetometer"] = ("ffff", magnetometer)
+    if uwb_model is not None:
+        uwb = UwbSimulator(uwb_model, stream_rng(seed, "uwb"), sc.faults)
+        anchor_ids = np.asarray(uwb_model.anchor_ids, dtype=object)
+
+        def ranges(tc: TruthChunk, _: float) -> list[Any]:
+            t, anchor, range_m = uwb.apply(tc)
+            return [t, anchor_ids[anchor], range_m]
+
+        streams["uwb"] = ("fsf", ranges)
+    if sc.support is not None:
+        support = SupportSimulator(sc.support, stream_rng(seed, "support"), sc.faults)
+        push_t = np.array([e.t for e in traj.push_events])
+        push_d = np.array([e.advance for e in traj.push_events])
+
+        def pushes(tc: TruthChunk, t_prev: float) -> list[Any]:
+            in_chunk = (push_t > t_prev) & (push_t <= tc.t[-1])
+            return list(support.apply(push_t[in_chunk], push_d[in_chunk]))
+
+        streams["support"] = ("ff", pushes)
+    if sc.position is not None:
+        fixes = PositionFixSimulator(sc.position, stream_rng(seed, "position"), sc.faults)
+
+        def positions(tc: TruthChunk, _: float) -> list[Any]:
+            t, enu, sigma = fixes.apply(tc)
+            return [t, *enu.T, *sigma.T]
+
+        streams["position"] = ("fffffff", positions)
+    return streams
 
 
 def _meta(
