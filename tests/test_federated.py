@@ -15,7 +15,7 @@ from fusion.config import (
     parse_config,
 )
 from fusion.engine import Engine
-from fusion.error_model import ImuNoise, StateLayout, common_blocks
+from fusion.error_model import ImuNoise, StateBlock, StateLayout, common_blocks
 from fusion.fault_detection import ISOLATE, READMIT, FaultMonitor
 from fusion.federated import FederatedFilter
 from fusion.filter_bank import CentralizedFilter
@@ -63,6 +63,41 @@ def test_fusion_reset_equals_centralized_on_common_states(
         np.testing.assert_allclose(
             fed.estimate()[1], ckf.estimate()[1], rtol=1e-8, atol=1e-14, err_msg=f"step {step}"
         )
+
+
+def test_fusion_reset_equals_centralized_with_a_local_owning_states() -> None:
+    """A local with its own states (an odometer's mounting angles and scale, say) beside locals
+    of common states only: propagating its own states' conditional at unit share keeps the
+    federated filter equal to the centralized one, own states included."""
+    rng = np.random.default_rng(5)
+    own = StateBlock("a.bias", ("b1", "b2", "b3"), (0.2, 0.1, 0.05), (1e-4, 1e-4, 1e-4))
+    layout = _layout().extended([own])
+    options = FederatedOptions(sharing="trace")
+    fed = FederatedFilter(layout, [["a.bias"], [], []], ["a", "b", "c"], options)
+    ckf = CentralizedFilter(layout)
+    for step in range(60):
+        phi_c, qd_c = _random_system(rng)
+        phi, qd = np.eye(18), np.zeros((18, 18))
+        phi[:15, :15], qd[:15, :15] = phi_c, qd_c
+        phi[15:, :15] = 0.05 * rng.standard_normal((3, 15))  # own states driven by common ones
+        qd[15:, 15:] = np.diag(rng.uniform(1e-6, 1e-4, 3))
+        fed.predict(phi, qd)
+        ckf.predict(phi, qd)
+        plugin = step % 3
+        h = np.zeros((2, 18))
+        h[:, :15] = rng.standard_normal((2, 15))
+        if plugin == 0:
+            h[:, 15:] = rng.standard_normal((2, 3))
+        r = np.diag(rng.uniform(0.01, 1.0, 2))
+        z = rng.standard_normal(2)
+        for bank in (fed, ckf):
+            local_layout, kf = bank.filter_of(plugin)
+            kf.update(z, h[:, : local_layout.dim], r)
+        np.testing.assert_allclose(fed.feedback(step), ckf.feedback(step), rtol=1e-8, atol=1e-12)
+        x_f, p_f = fed.estimate()
+        x_c, p_c = ckf.estimate()
+        np.testing.assert_allclose(x_f, x_c, rtol=1e-8, atol=1e-12, err_msg=f"step {step}")
+        np.testing.assert_allclose(p_f, p_c, rtol=1e-7, atol=1e-14, err_msg=f"step {step}")
 
 
 def test_single_local_equals_centralized_end_to_end(tmp_path: Path) -> None:
