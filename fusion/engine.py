@@ -39,9 +39,10 @@ from fusion.filter_bank import CentralizedFilter, FilterBank
 from fusion.kalman import KalmanFilter, UpdateResult
 from fusion.plugin import MeasurementContext, Plugin, create_plugin
 from fusion.recording import ImuSpec, Recording
+from fusion.rows import RowBuffer
 from fusion.smoother import WindowedSmoother
 from fusion.solution import Solution
-from fusion.strapdown import HGT, LAT, LON, Q0, VEL, NavState, Strapdown
+from fusion.strapdown import HGT, LAT, LON, NAV_SIZE, Q0, VEL, NavState, Strapdown
 
 ProgressCallback = Callable[[float], None]
 GRID, OUTPUT = -1, -2
@@ -279,9 +280,10 @@ class Engine:
             output_times,
         )
         logs = {p.name: InnovationLog() for p in self.plugins}
-        out_t = [t0]
-        out_nav = [sins.nav.copy()]
-        out_cov = [bank.position_covariance()]
+        out_t, out_nav, out_cov = RowBuffer(), RowBuffer((NAV_SIZE,)), RowBuffer((3, 3))
+        out_t.append(t0)
+        out_nav.append(sins.nav)
+        out_cov.append(bank.position_covariance())
         smoother = self._smoother(bank)
         if smoother is not None:
             state = bank.smoothing_state()
@@ -324,12 +326,12 @@ class Engine:
                 )
             if is_output:
                 out_t.append(te)
-                out_nav.append(sins.nav.copy())
+                out_nav.append(sins.nav)
                 out_cov.append(bank.position_covariance())
             if progress is not None and (i // report_every) != (j // report_every):
                 progress(j / n_events)
             i = j
-        solution = self._solution(np.array(out_t), np.array(out_nav), np.array(out_cov))
+        solution = self._solution(out_t.to_array(), out_nav.to_array(), out_cov.to_array())
         smoothed = None
         if smoother is not None:
             smoother.close_window()

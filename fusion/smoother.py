@@ -38,36 +38,50 @@ from __future__ import annotations
 
 import shutil
 import tempfile
+from array import array
+from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
 import scipy.linalg
 from numpy.typing import NDArray
 
-from fusion.strapdown import remove_errors
+from fusion.rows import RowBuffer
+from fusion.strapdown import NAV_SIZE, remove_errors
 
 CHUNK = 2048
 Rows = tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]
 FIELDS = ("phi", "x_prior", "p_prior", "x_post", "p_post", "feedback")
+MATRICES = ("phi", "p_prior", "p_post")
+Step = dict[str, NDArray[np.float64]]
 
 
 class StepStore:
     """What the forward filter stored at each step of a smoothing window.
+
+    Steps are kept in chunks of :data:`CHUNK` rows, one row per step holding every field of
+    :data:`FIELDS` side by side. Completed chunks beyond the memory budget are written to a
+    temporary directory as ``.npy`` files and read back one at a time by :meth:`backward`, so
+    the resident memory stays near the budget whatever the window's length.
 
     Parameters
     ----------
     dim
         Dimension of the smoothed state.
     memory_budget_mb
-        In-memory size beyond which further chunks are written to disk.
+        In-memory size beyond which completed chunks are written to disk.
     """
 
     def __init__(self, dim: int, memory_budget_mb: float = 512.0) -> None:
         self.dim = dim
         self.budget = memory_budget_mb * 1e6
-        self._chunks: list[dict[str, NDArray[np.float64]]] = []
-        self.t: list[float] = []
-        self.output: list[bool] = []
+        widths = [dim * dim if f in MATRICES else dim for f in FIELDS]
+        ends = np.cumsum(widths)
+        self._columns = {f: slice(e - w, e) for f, w, e in zip(FIELDS, widths, ends, strict=True)}
+        self._width = int(ends[-1])
+        self._chunks: list[NDArray[np.float64] | Path] = []
+        self.t = array("d")
+        self.output = array("b")
         self.n = 0
         self._bytes = 0.0
         self._spill: Path | None = None
@@ -76,30 +90,6 @@ class StepStore:
     def spilled(self) -> bool:
         """Whether some chunks live on disk."""
         return self._spill is not None
-
-    def _new_chunk(self) -> dict[str, NDArray[np.float64]]:
-        n = self.dim
-        shapes = {
-            "phi": (CHUNK, n, n),
-            "x_prior": (CHUNK, n),
-            "p_prior": (CHUNK, n, n),
-            "x_post": (CHUNK, n),
-            "p_post": (CHUNK, n, n),
-            "feedback": (CHUNK, n),
-        }
-        size = sum(8.0 * np.prod(s) for s in shapes.values())
-        if self._bytes + size <= self.budget:
-            self._bytes += size
-            return {k: np.empty(s) for k, s in shapes.items()}
-        if self._spill is None:
-            self._spill = Path(tempfile.mkdtemp(prefix="fusion-smoother-"))
-        index = len(self._chunks)
-        return {
-            k: np.lib.format.open_memmap(
-                self._spill / f"{index}-{k}.npy", mode="w+", dtype=np.float64, shape=s
-            )
-            for k, s in shapes.items()
-        }
 
     def append(
         self,
@@ -113,19 +103,46 @@ class StepStore:
         """Store one step: Φ from the previous step, prior, posterior, applied feedback."""
         i = self.n % CHUNK
         if i == 0:
-            self._chunks.append(self._new_chunk())
-        chunk = self._chunks[-1]
-        chunk["phi"][i] = phi
-        chunk["x_prior"][i], chunk["p_prior"][i] = prior
-        chunk["x_post"][i], chunk["p_post"][i] = posterior
-        chunk["feedback"][i] = feedback
+            self._chunks.append(np.empty((CHUNK, self._width)))
+        row = self._chunks[-1][i]  # type: ignore[index]
+        values = (phi, prior[0], prior[1], posterior[0], posterior[1], feedback)
+        for field, value in zip(FIELDS, values, strict=True):
+            row[self._columns[field]] = value.ravel()
         self.t.append(t)
         self.output.append(output)
         self.n += 1
+        if self.n % CHUNK == 0:
+            self._retire()
 
-    def get(self, name: str, k: int) -> NDArray[np.float64]:
-        """Stored field ``name`` of step ``k``."""
-        return self._chunks[k // CHUNK][name][k % CHUNK]
+    def _retire(self) -> None:
+        """Keep the chunk just completed in memory while the budget allows, else write it out."""
+        chunk = self._chunks[-1]
+        assert isinstance(chunk, np.ndarray)
+        if self._bytes + chunk.nbytes <= self.budget:
+            self._bytes += chunk.nbytes
+            return
+        if self._spill is None:
+            self._spill = Path(tempfile.mkdtemp(prefix="fusion-smoother-"))
+        path = self._spill / f"{len(self._chunks) - 1}.npy"
+        np.save(path, chunk)
+        self._chunks[-1] = path
+
+    def _step(self, block: NDArray[np.float64], i: int) -> Step:
+        n = self.dim
+        row = block[i]
+        return {
+            f: row[c].reshape(n, n) if f in MATRICES else row[c] for f, c in self._columns.items()
+        }
+
+    def backward(self) -> Iterator[tuple[int, Step]]:
+        """Every stored step, last first, as ``(k, fields)``; a spilled chunk is read when the
+        recursion reaches it and released after."""
+        for index in range(len(self._chunks) - 1, -1, -1):
+            chunk = self._chunks[index]
+            block = np.load(chunk) if isinstance(chunk, Path) else chunk
+            count = min(CHUNK, self.n - index * CHUNK)
+            for i in range(count - 1, -1, -1):
+                yield index * CHUNK + i, self._step(block, i)
 
     def close(self) -> None:
         """Free the memory and delete any spill files."""
@@ -153,25 +170,24 @@ def rts(
     recursion runs from the last step of the window (where the smoothed estimate is the filtered
     one) back to the first; the prior of the first step is not used.
     """
-    n = store.n
     keep = np.asarray(store.output if keep is None else keep, dtype=bool)
     rows = np.cumsum(keep) - 1
     d_out = np.empty((int(keep.sum()), store.dim))
     p_out = np.empty((int(keep.sum()), store.dim, store.dim))
-    e_next = store.get("x_post", n - 1).copy()
-    p_next = store.get("p_post", n - 1).copy()
-    for k in range(n - 1, -1, -1):
-        if k < n - 1:
-            p_post = store.get("p_post", k)
-            p_prior_next = store.get("p_prior", k + 1)
-            cross = p_post @ store.get("phi", k + 1).T
-            gain = _solve_psd(p_prior_next, cross.T).T
-            e_next = store.get("x_post", k) + gain @ (e_next - store.get("x_prior", k + 1))
-            p_next = p_post + gain @ (p_next - p_prior_next) @ gain.T
+    later: Step | None = None  # step k + 1 (its prior and Φ)
+    for k, step in store.backward():
+        if later is None:
+            e_next, p_next = step["x_post"].copy(), step["p_post"].copy()
+        else:
+            p_post = step["p_post"]
+            gain = _solve_psd(later["p_prior"], later["phi"] @ p_post).T
+            e_next = step["x_post"] + gain @ (e_next - later["x_prior"])
+            p_next = p_post + gain @ (p_next - later["p_prior"]) @ gain.T
             p_next = 0.5 * (p_next + p_next.T)
         if keep[k]:
-            d_out[rows[k]] = e_next - store.get("feedback", k)
+            d_out[rows[k]] = e_next - step["feedback"]
             p_out[rows[k]] = p_next
+        later = step
     return d_out, p_out
 
 
@@ -197,10 +213,10 @@ class WindowedSmoother:
         self.window_ends = np.asarray(window_ends, dtype=float)
         self.budget = memory_budget_mb
         self.store = StepStore(dim, memory_budget_mb)
-        self._navs: list[NDArray[np.float64]] = []
-        self.t: list[float] = []
-        self.nav: list[NDArray[np.float64]] = []
-        self.covariance: list[NDArray[np.float64]] = []
+        self._navs = RowBuffer((NAV_SIZE,))
+        self.t = RowBuffer()
+        self.nav = RowBuffer((NAV_SIZE,))
+        self.covariance = RowBuffer((3, 3))
         self.peak_steps = 0
         self.spilled = False
         self._next_end = 0
@@ -218,7 +234,7 @@ class WindowedSmoother:
         window's smoothed rows."""
         self.store.append(t, phi, prior, posterior, feedback, nav_after is not None)
         if nav_after is not None:
-            self._navs.append(nav_after.copy())
+            self._navs.append(nav_after)
         due = False
         while self._next_end < self.window_ends.size and self.window_ends[self._next_end] <= t:
             self._next_end += 1
@@ -235,22 +251,17 @@ class WindowedSmoother:
         if any(store.output):
             d, p_s = rts(store)
             times = np.asarray(store.t)[np.asarray(store.output, dtype=bool)]
-            for t, nav, dk, pk in zip(times, self._navs, d, p_s, strict=True):
-                smoothed = nav.copy()
+            for t, smoothed, dk, pk in zip(times, self._navs.to_array(), d, p_s, strict=True):
                 remove_errors(smoothed, dk[0:3], dk[3:6], dk[6:9])
-                self.t.append(float(t))
+                self.t.append(t)
                 self.nav.append(smoothed)
-                self.covariance.append(pk[6:9, 6:9].copy())
+                self.covariance.append(pk[6:9, 6:9])
         store.close()
         self.store = StepStore(self.dim, self.budget)
-        self._navs = []
+        self._navs = RowBuffer((NAV_SIZE,))
         return self.rows(first)
 
     def rows(self, first: int = 0) -> Rows:
         """Times, smoothed navigation states and position covariances of the rows from
         ``first`` on (default: all)."""
-        return (
-            np.array(self.t[first:]),
-            np.array(self.nav[first:]),
-            np.array(self.covariance[first:]),
-        )
+        return self.t.to_array(first), self.nav.to_array(first), self.covariance.to_array(first)

@@ -1,0 +1,44 @@
+"""Rows of a fixed shape accumulated compactly (8 bytes per number).
+
+An 8-hour run produces about 300 000 output epochs; kept as a Python list of small numpy
+arrays each row costs ~100 bytes of object header beside its data, and the final
+``np.array(list)`` briefly holds both. :class:`RowBuffer` appends the numbers to one
+:class:`array.array` instead and views it as an ``(n, *shape)`` array at the end.
+"""
+
+from __future__ import annotations
+
+from array import array
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+
+class RowBuffer:
+    """Growable ``(n, *shape)`` float64 array.
+
+    Parameters
+    ----------
+    shape
+        Shape of one row (``()`` for scalars).
+    """
+
+    def __init__(self, shape: tuple[int, ...] = ()) -> None:
+        self.shape = shape
+        self._size = int(np.prod(shape, dtype=int))
+        self._data = array("d")
+
+    def append(self, row: ArrayLike) -> None:
+        """Append one row (anything of ``shape``)."""
+        values = np.asarray(row, dtype=np.float64)
+        if values.shape != self.shape:
+            raise ValueError(f"row of shape {values.shape}, expected {self.shape}")
+        self._data.extend(values.ravel())
+
+    def __len__(self) -> int:
+        return len(self._data) // max(self._size, 1)
+
+    def to_array(self, first: int = 0) -> NDArray[np.float64]:
+        """A copy of the rows from ``first`` on as an ``(n, *shape)`` array."""
+        rows = np.frombuffer(self._data, dtype=np.float64).reshape(-1, *self.shape)
+        return rows[first:].copy()
