@@ -415,10 +415,15 @@ class Engine:
         )
 
     def _context(
-        self, sins: Strapdown, layout: StateLayout, kf: KalmanFilter, t: float
+        self,
+        sins: Strapdown,
+        layout: StateLayout,
+        kf: KalmanFilter,
+        t: float,
+        shared: NDArray[np.float64] | None,
     ) -> MeasurementContext:
         nav = sins.nav
-        covariance = kf.P.view()
+        covariance = (kf.P if shared is None else shared).view()
         covariance.flags.writeable = False
         return MeasurementContext(
             t=t,
@@ -446,10 +451,11 @@ class Engine:
     ) -> bool:
         plugin = self.plugins[src]
         layout, kf = bank.filter_of(src)
-        m = plugin.measure(index, self._context(sins, layout, kf, t))
+        shared = bank.shared_covariance(src)
+        m = plugin.measure(index, self._context(sins, layout, kf, t, shared))
         if m is None:
             return False
-        res = kf.update(m.z, m.H, m.R, self.gates[src])
+        res = kf.update(m.z, m.H, m.R, self.gates[src], shared)
         bank.record(src, t, res, m.suspect)
         logs[plugin.name].append(t, res, m.suspect)
         return res.accepted

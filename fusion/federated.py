@@ -108,16 +108,25 @@ class LocalFilter:
         self.kf.predict(phi, qd)
         self._set_common_covariance(self.kf.P[COMMON, COMMON] / self.beta)
 
+    def unit_share_covariance(self) -> NDArray[np.float64]:
+        """This local's covariance with the common marginal at full share (P_cc β_i, K and
+        P_p|c kept): after a reset, the centralized filter's covariance of (c, p_i)."""
+        return self._with_common_covariance(self.kf.P[COMMON, COMMON] * self.beta)
+
     def _set_common_covariance(self, p_cc: NDArray[np.float64]) -> None:
-        """Replace P_cc, keeping the own states' regression K and conditional P_p|c:
+        self.kf.P = self._with_common_covariance(p_cc)
+
+    def _with_common_covariance(self, p_cc: NDArray[np.float64]) -> NDArray[np.float64]:
+        """P with P_cc replaced, keeping the own states' regression K and conditional P_p|c:
         P_pc ← K P_cc and P_pp ← P_p|c + K P_cc Kᵀ."""
-        p = self.kf.P
+        p = self.kf.P.copy()
         if p.shape[0] > N_COMMON:
             gain, conditional = self.regression()
             p[OWN, COMMON] = gain @ p_cc
             p[COMMON, OWN] = p[OWN, COMMON].T
             p[OWN, OWN] = conditional + gain @ p_cc @ gain.T
         p[COMMON, COMMON] = p_cc
+        return p
 
 
 def _spd_inverse(p: NDArray[np.float64]) -> NDArray[np.float64]:
@@ -227,6 +236,16 @@ class FederatedFilter:
         """The local filter of plugin ``plugin``."""
         f = self.locals[self._local_of_plugin[plugin]]
         return f.layout, f.kf
+
+    def shared_covariance(self, plugin: int) -> NDArray[np.float64] | None:
+        """A local that takes part in fusion and reset holds the fused estimate with its common
+        covariance inflated by 1/β_i; its measurements are judged against the local at unit
+        share, which is the centralized filter's covariance. An isolated local (or one in
+        ``no_reset`` mode) filters on its own: its own P."""
+        f = self.locals[self._local_of_plugin[plugin]]
+        if self.options.mode != "fusion_reset" or f not in self._members():
+            return None
+        return f.unit_share_covariance()
 
     def record(self, plugin: int, t: float, result: UpdateResult, suspect: bool) -> None:
         """Feed the local's fault monitor; note isolation and re-admission events."""

@@ -36,6 +36,10 @@ class FilterBank(Protocol):
     def filter_of(self, plugin: int) -> tuple[StateLayout, KalmanFilter]:
         """Layout and Kalman filter that serve plugin number ``plugin``."""
 
+    def shared_covariance(self, plugin: int) -> NDArray[np.float64] | None:
+        """The covariance a plugin's measurement is judged against (its context, gate and test
+        statistic) when it is not its filter's own ``P``; ``None`` otherwise."""
+
     def record(self, plugin: int, t: float, result: UpdateResult, suspect: bool) -> None:
         """Note the outcome of one update of plugin ``plugin`` (fault monitoring)."""
 
@@ -78,6 +82,10 @@ class CentralizedFilter:
     def filter_of(self, plugin: int) -> tuple[StateLayout, KalmanFilter]:
         """Every plugin is served by the one filter."""
         return self.layout, self.kf
+
+    def shared_covariance(self, plugin: int) -> None:
+        """The filter's own ``P`` serves every plugin."""
+        return None
 
     def record(self, plugin: int, t: float, result: UpdateResult, suspect: bool) -> None:
         """Nothing to monitor: gating is the CKF's only defence."""

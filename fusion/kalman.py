@@ -92,12 +92,21 @@ class KalmanFilter:
         h: NDArray[np.float64],
         r: NDArray[np.float64],
         gate_probability: float | None = None,
+        statistic_covariance: NDArray[np.float64] | None = None,
     ) -> UpdateResult:
-        """Measurement update (see module docstring); ``z`` (m,), ``h`` (m, n), ``r`` (m, m)."""
+        """Measurement update (see module docstring); ``z`` (m,), ``h`` (m, n), ``r`` (m, m).
+
+        ``statistic_covariance`` (default: ``P``) is the state covariance against which the
+        innovation is whitened and gated, S = H P' Hᵀ + R; the gain always uses ``P``. A
+        federated local passes its covariance at unit share (:mod:`fusion.federated`): its own
+        ``P`` is inflated by 1/β_i and would make every test 1/β_i too lenient.
+        """
         z = np.atleast_1d(np.asarray(z, dtype=float))
         h = np.ascontiguousarray(np.atleast_2d(h), dtype=float)
         r = np.ascontiguousarray(np.atleast_2d(r), dtype=float)
         nu, whitened, chol, ph_t = _innovation(self.x, self.P, z, h, r)
+        if statistic_covariance is not None:
+            whitened = _innovation(self.x, statistic_covariance, z, h, r)[1]
         nis = float(whitened @ whitened)
         threshold = None
         if gate_probability is not None:

@@ -121,6 +121,22 @@ def test_single_local_equals_centralized_end_to_end(tmp_path: Path) -> None:
     np.testing.assert_allclose(fed.final_covariance, ckf.final_covariance, atol=1e-11 * scale)
 
 
+def test_five_source_partition_tracks_the_centralized_filter(tmp_path: Path) -> None:
+    """full_afkf without fault isolation against full_ckf: four locals (the kinematic one owns
+    the odometer's states), adaptive magnetometer and UWB noise, gates. Each local's updates are
+    exact in information form; what differs is second order — the second plugin of a local in
+    one round is judged against a covariance that counts the first one's information 1/β_i
+    times, and a local's plugins linearize without the other locals' updates of that round."""
+    simulate("longwall-200m", tmp_path / "rec", seed=1, overrides=["duration_s=150"])
+    rec = read_recording(tmp_path / "rec")
+    data = load_config(CONFIGS / "full_afkf.yaml").model_dump()
+    data["filter"]["federated"]["fault_detection"]["enabled"] = False
+    fed = Engine(parse_config(data), rec).run()
+    ckf = Engine(load_config(CONFIGS / "full_ckf.yaml"), rec).run()
+    assert np.abs(fed.solution.position - ckf.solution.position).max() < 1e-3
+    np.testing.assert_allclose(fed.solution.sigma_position, ckf.solution.sigma_position, rtol=2e-3)
+
+
 def test_reset_carries_own_states_as_a_conditional() -> None:
     """Resetting the common states moves a local's own states along their regression on them,
     and leaves the covariance positive definite."""

@@ -24,7 +24,7 @@ from fusion.engine import Engine, RunResult
 from fusion.error_model import G0
 from fusion.metrics import interpolate_truth
 from fusion.plugin import Measurement, PluginError, create_plugin
-from fusion.recording import Recording, read_recording
+from fusion.recording import OdometerData, OdometerMeta, Recording, read_recording
 from fusion.sim.simulate import simulate
 from plugins.zupt import Zupt, default_thresholds, detect_stationary, window_samples
 from tests.plugin_support import (
@@ -120,6 +120,29 @@ def test_motion_constraint_while_moving() -> None:
     assert np.any(m.H[:, layout.slice("zupt.mounting_angles")] != 0.0)
     alone = Zupt("zupt", Zupt.Options(), rec)
     assert alone.measure(int(moving[0]), perturbed_context(layout_with(()), np.zeros(15))) is None
+
+
+def test_odometer_rest_withholds_zupts_while_the_encoder_creeps() -> None:
+    """A machine creeping off at mm/s is still to the IMU detector; with ``odometer_rest_mps``
+    an epoch needs every encoder reading of the past ``guard_s`` below that speed."""
+    rec = static_recording()
+    t = np.arange(1, 301) / 10.0
+    speed = np.where(t > 12.0, 0.002 * (t - 12.0), 0.0)  # 2 mm/s² creep from 12 s
+    rec = replace(
+        rec,
+        meta=rec.meta.model_copy(update={"odometer": OdometerMeta(rate_hz=10.0)}),
+        odometer=OdometerData(t=t, speed=speed),
+    )
+    imu_only = Zupt("zupt", Zupt.Options(), rec)
+    guarded = Zupt("zupt", Zupt.Options(odometer_rest_mps=0.006), rec)
+    epochs = guarded.epochs()
+    assert imu_only.zupt_epoch[epochs > 15.0].all()  # the IMU cannot tell
+    creeping = t[np.abs(speed) >= 0.006][0]  # 15 s
+    np.testing.assert_array_equal(
+        guarded.zupt_epoch, imu_only.zupt_epoch & (epochs >= t[0]) & (epochs < creeping)
+    )
+    with pytest.raises(ValueError, match="odometer_rest_mps needs odometer.csv"):
+        Zupt("zupt", Zupt.Options(odometer_rest_mps=0.006), static_recording())
 
 
 # ------------------------------------------------------------------------------------------
