@@ -63,6 +63,9 @@ class FaultDetectionOptions(_Strict):
         " is not",
     )
     use_indicators: bool = Field(True, description="a suspect measurement isolates its local")
+    mean_test: bool = Field(
+        True, description="also test each plugin's windowed mean whitened innovation (a bias)"
+    )
 
 
 class FederatedOptions(_Strict):

@@ -251,7 +251,7 @@ class FederatedFilter:
         """Feed the local's fault monitor; note isolation and re-admission events."""
         self._fused = None  # the local has just been updated
         f = self.locals[self._local_of_plugin[plugin]]
-        event = f.monitor.observe(t, result.nis, result.dof, suspect)
+        event = f.monitor.observe(t, result.nis, result.dof, suspect, str(plugin), result.whitened)
         if event is not None:
             self.faults.append(event)
             f.reinitialize = event.action == READMIT

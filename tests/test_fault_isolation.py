@@ -60,7 +60,10 @@ def test_magnetic_interference_isolated_readmitted_and_bounded(
     events = [(e.local, e.action, e.t) for e in result.faults]
     assert [(loc, act) for loc, act, _ in events] == [("magnetic", ISOLATE), ("magnetic", READMIT)]
     assert t_start <= events[0][2] <= t_start + 3.0  # flagged within a few seconds of onset
-    assert t_end + hold <= events[1][2] <= t_end + hold + 5.0  # back after the hold
+    # Back after the hold, once the isolated local's own estimate (dragged by the interference
+    # while it filtered alone) has re-converged and its mean innovation is unbiased again.
+    window = afkf.filter.federated.fault_detection.window_s
+    assert t_end + hold <= events[1][2] <= t_end + hold + window + 5.0
 
     clean = _max_horizontal(Engine(afkf, recordings["seed003-brokenline"]).run(), disturbed)
     afkf_max = _max_horizontal(result, disturbed)

@@ -182,6 +182,33 @@ def test_monitor_isolates_a_burst_and_readmits_after_hold() -> None:
     assert 60.0 + 10.0 <= events[1].t < 60.0 + 5.0 + 10.0 + 1.0
 
 
+def test_mean_test_finds_a_bias_the_chi_square_sum_misses() -> None:
+    """A 1σ bias on one of three whitened components for 10 s at 10 Hz raises the 5-s χ² sum
+    by a third of its degrees of freedom, under its threshold; the windowed mean sees it. An
+    hour of consistent innovations raises no more than a few isolations."""
+    rng = np.random.default_rng(3)
+    events = {}
+    for mean_test in (False, True):
+        mon = FaultMonitor("odo", FaultDetectionOptions(mean_test=mean_test))
+        found = []
+        for ti in np.arange(0.0, 60.0, 0.1):
+            w = rng.standard_normal(3) + (1.0 if 30.0 <= ti < 40.0 else 0.0) * np.eye(3)[0]
+            e = mon.observe(ti, float(w @ w), 3, False, "odometer", w)
+            if e is not None:
+                found.append(e)
+        events[mean_test] = found
+    assert events[False] == []
+    assert events[True][0].action == ISOLATE and 30.0 < events[True][0].t < 35.0
+    assert events[True][0].reason == "window mean of odometer"
+    quiet = FaultMonitor("odo", FaultDetectionOptions())
+    isolations = 0
+    for ti in np.arange(0.0, 3600.0, 0.1):
+        w = rng.standard_normal(3)
+        e = quiet.observe(ti, float(w @ w), 3, False, "odometer", w)
+        isolations += e is not None and e.action == ISOLATE
+    assert isolations <= 3
+
+
 def test_monitor_isolates_on_plugin_indicator() -> None:
     mon = _monitor()
     assert mon.observe(0.0, 0.5, 1, False) is None

@@ -141,7 +141,7 @@ def test_odometer_rest_withholds_zupts_while_the_encoder_creeps() -> None:
     np.testing.assert_array_equal(
         guarded.zupt_epoch, imu_only.zupt_epoch & (epochs >= t[0]) & (epochs < creeping)
     )
-    with pytest.raises(ValueError, match="odometer_rest_mps needs odometer.csv"):
+    with pytest.raises(ValueError, match=r"odometer_rest_mps needs odometer\.csv"):
         Zupt("zupt", Zupt.Options(odometer_rest_mps=0.006), static_recording())
 
 
