@@ -42,7 +42,10 @@ Tightly coupled ranges (:class:`UwbRanges`)
     VB-UKF that seed 004 cites (ref. 28; Särkkä & Nummenmaa, IEEE TAC 54(3), 2009) with an
     inverse-gamma ``R_i ~ IG(α_i, β_i)`` per anchor, applied to the scalar range update.
     Between two ranges of the anchor, Δt apart, the statistics are forgotten with
-    ``ρ = exp(−Δt/τ)`` (``τ = adaptive_window_s``): ``α⁻ = ρα``, ``β⁻ = ρβ``. At a range
+    ``ρ = exp(−Δt/τ)`` (``τ = adaptive_window_s``): ``α⁻ = ρα``, ``β⁻ = ρβ``; when less than one
+    range's weight is left (α⁻ < ½: the anchor was out of sight for several τ) the statistics
+    restart from the prior, so an anchor met again after an hour starts from the datasheet R
+    instead of 0/0 (the 8-hour shift reaches that underflow). At a range
     with prior innovation ``ν = z − H x̂`` and ``s = H P Hᵀ`` the fixed point ::
 
         R ← β/α,   α = α⁻ + ½,   β = β⁻ + ½ ν² R²/(s + R)² + ½ s R/(s + R)
@@ -194,7 +197,8 @@ class UwbRanges(Plugin):
         # Inverse-gamma statistics per anchor; the prior weighs one window of ranges.
         self._alpha0 = 0.5 * max(meta.rate_hz * options.adaptive_window_s, 1.0)
         self.alpha = np.full(n, self._alpha0)
-        self.beta = self.alpha * options.sigma_range_m**2
+        self._beta0 = self._alpha0 * options.sigma_range_m**2
+        self.beta = np.full(n, self._beta0)
         self.t_last = np.full(n, np.nan)
         self._screen = chi2_threshold(1, options.adaptive_screen_probability)
 
@@ -270,6 +274,8 @@ class UwbRanges(Plugin):
             forget = math.exp(-(ctx.t - self.t_last[k]) / self.options.adaptive_window_s)
             self.alpha[k] *= forget
             self.beta[k] *= forget
+            if self.alpha[k] < 0.5:
+                self.alpha[k], self.beta[k] = self._alpha0, self._beta0
         self.t_last[k] = ctx.t
         nu = z - float(h @ ctx.x)
         s = float(h @ ctx.covariance @ h)

@@ -366,6 +366,28 @@ def test_nlos_ranges_are_gated_alone(nlos_recording: Recording) -> None:
     assert np.max(np.abs(err_ungated)) > 0.2 > np.max(np.abs(err))
 
 
+def test_variational_bayes_restarts_from_the_prior_after_a_long_absence() -> None:
+    """An anchor met again after an hour out of sight: exp(−3600/5) underflows, and the
+    forgotten statistics restart from the prior instead of giving R = 0/0."""
+    true_range = float(np.linalg.norm(_true_tag() - np.array(ANCHORS_ENU["A1"])))
+    rec = _recording(ANCHORS_ENU, LEVER_ARM, [("A1", true_range + 0.2), ("A1", true_range)])
+    assert rec.uwb is not None
+    opts = UwbOptions(sigma_range_m=0.03, adaptive_noise="variational_bayes", adaptive_window_s=5)
+    plugin = UwbRanges("uwb", opts, rec)
+    layout = layout_with(plugin.state_blocks())
+    ctx = perturbed_context(
+        layout,
+        np.zeros(layout.dim),
+        position_enu=P_TRUE,
+        c_b_n=C_B_N,
+        covariance=np.zeros((layout.dim, layout.dim)),
+    )
+    plugin.measure(0, replace(ctx, t=0.0))
+    again = plugin.measure(1, replace(ctx, t=3600.0))
+    assert again is not None and np.isfinite(again.R).all()
+    assert again.R[0, 0] == pytest.approx(0.03**2, rel=0.01)  # the prior, one range learned
+
+
 def test_adaptive_noise_is_not_taught_by_nlos(nlos_recording: Recording) -> None:
     """With the screen equal to the gate, the NLOS anchor's learned σ stays at the true 3 cm
     (from a 5 cm prior) while its biased ranges are rejected."""
