@@ -91,10 +91,10 @@ class LocalFilter:
         error estimate is zero.
         """
         x = self.kf.x
-        if x.size > N_COMMON:
-            gain, _ = self.regression()
-            x[OWN] += gain @ (x_global - x[COMMON])
-        self._set_common_covariance(p_global / self.beta)
+        regression = self.regression() if x.size > N_COMMON else None
+        if regression is not None:
+            x[OWN] += regression[0] @ (x_global - x[COMMON])
+        self.kf.P = self._with_common_covariance(p_global / self.beta, regression)
         x[COMMON] = 0.0
 
     def predict(self, phi: NDArray[np.float64], qd: NDArray[np.float64]) -> None:
@@ -116,12 +116,17 @@ class LocalFilter:
     def _set_common_covariance(self, p_cc: NDArray[np.float64]) -> None:
         self.kf.P = self._with_common_covariance(p_cc)
 
-    def _with_common_covariance(self, p_cc: NDArray[np.float64]) -> NDArray[np.float64]:
-        """P with P_cc replaced, keeping the own states' regression K and conditional P_p|c:
-        P_pc ← K P_cc and P_pp ← P_p|c + K P_cc Kᵀ."""
+    def _with_common_covariance(
+        self,
+        p_cc: NDArray[np.float64],
+        regression: tuple[NDArray[np.float64], NDArray[np.float64]] | None = None,
+    ) -> NDArray[np.float64]:
+        """P with P_cc replaced, keeping the own states' regression K and conditional P_p|c
+        (``regression``, when the caller has it already): P_pc ← K P_cc and
+        P_pp ← P_p|c + K P_cc Kᵀ."""
         p = self.kf.P.copy()
         if p.shape[0] > N_COMMON:
-            gain, conditional = self.regression()
+            gain, conditional = self.regression() if regression is None else regression
             p[OWN, COMMON] = gain @ p_cc
             p[COMMON, OWN] = p[OWN, COMMON].T
             p[OWN, OWN] = conditional + gain @ p_cc @ gain.T

@@ -27,7 +27,7 @@ from fusion.attitude import dcm_from_euler
 from fusion.config import load_config, parse_config
 from fusion.engine import Engine, RunResult
 from fusion.metrics import interpolate_truth
-from fusion.plugin import Measurement, PluginError, create_plugin
+from fusion.plugin import Measurement, MeasurementContext, PluginError, create_plugin
 from fusion.recording import Recording, UwbData, read_recording
 from fusion.sim.simulate import simulate
 from fusion.solution import Solution
@@ -206,16 +206,12 @@ def test_bad_input_is_named() -> None:
         )
 
 
-def test_variational_bayes_learns_the_range_noise() -> None:
-    """Ranges of 0.1 m noise from a 0.03 m prior: the VB estimate of that anchor converges to
-    0.1 m (with H P Hᵀ = 0 the innovation is the range noise); an outlier beyond the screen
-    leaves it unchanged and is returned with the learned R; the other anchors keep the prior."""
-    rng = np.random.default_rng(4)
-    true_range = float(np.linalg.norm(_true_tag() - np.array(ANCHORS_ENU["A1"])))
-    noisy = true_range + 0.1 * rng.standard_normal(4000)  # 40 s of 0.01 s rows
-    ranges = [("A1", float(r)) for r in noisy] + [("A1", true_range + 2.0)]
+def _variational_bayes_at_rest(
+    ranges: list[tuple[str, float]],
+) -> tuple[Recording, UwbRanges, MeasurementContext]:
+    """A VB plugin (prior 0.03 m, τ = 5 s) on ``ranges`` and a context at the true pose with
+    an exact state (H P Hᵀ = 0: the innovation is the range error)."""
     rec = _recording(ANCHORS_ENU, LEVER_ARM, ranges)
-    assert rec.uwb is not None
     opts = UwbOptions(sigma_range_m=0.03, adaptive_noise="variational_bayes", adaptive_window_s=5)
     plugin = UwbRanges("uwb", opts, rec)
     layout = layout_with(plugin.state_blocks())
@@ -226,6 +222,19 @@ def test_variational_bayes_learns_the_range_noise() -> None:
         c_b_n=C_B_N,
         covariance=np.zeros((layout.dim, layout.dim)),
     )
+    return rec, plugin, ctx
+
+
+def test_variational_bayes_learns_the_range_noise() -> None:
+    """Ranges of 0.1 m noise from a 0.03 m prior: the VB estimate of that anchor converges to
+    0.1 m (with H P Hᵀ = 0 the innovation is the range noise); an outlier beyond the screen
+    leaves it unchanged and is returned with the learned R; the other anchors keep the prior."""
+    rng = np.random.default_rng(4)
+    true_range = float(np.linalg.norm(_true_tag() - np.array(ANCHORS_ENU["A1"])))
+    noisy = true_range + 0.1 * rng.standard_normal(4000)  # 40 s of 0.01 s rows
+    ranges = [("A1", float(r)) for r in noisy] + [("A1", true_range + 2.0)]
+    rec, plugin, ctx = _variational_bayes_at_rest(ranges)
+    assert rec.uwb is not None
     for i in range(noisy.size):
         plugin.measure(i, replace(ctx, t=float(rec.uwb.t[i])))
     learned = plugin.noise_sigma()[0]
@@ -370,18 +379,8 @@ def test_variational_bayes_restarts_from_the_prior_after_a_long_absence() -> Non
     """An anchor met again after an hour out of sight: exp(−3600/5) underflows, and the
     forgotten statistics restart from the prior instead of giving R = 0/0."""
     true_range = float(np.linalg.norm(_true_tag() - np.array(ANCHORS_ENU["A1"])))
-    rec = _recording(ANCHORS_ENU, LEVER_ARM, [("A1", true_range + 0.2), ("A1", true_range)])
+    rec, plugin, ctx = _variational_bayes_at_rest([("A1", true_range + 0.2), ("A1", true_range)])
     assert rec.uwb is not None
-    opts = UwbOptions(sigma_range_m=0.03, adaptive_noise="variational_bayes", adaptive_window_s=5)
-    plugin = UwbRanges("uwb", opts, rec)
-    layout = layout_with(plugin.state_blocks())
-    ctx = perturbed_context(
-        layout,
-        np.zeros(layout.dim),
-        position_enu=P_TRUE,
-        c_b_n=C_B_N,
-        covariance=np.zeros((layout.dim, layout.dim)),
-    )
     plugin.measure(0, replace(ctx, t=0.0))
     again = plugin.measure(1, replace(ctx, t=3600.0))
     assert again is not None and np.isfinite(again.R).all()
