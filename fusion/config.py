@@ -68,6 +68,21 @@ class FaultDetectionOptions(_Strict):
     )
 
 
+class JumpDetectionOptions(_Strict):
+    """GLR detection of jumps in the states plugins declare may jump (:mod:`fusion.jumps`)."""
+
+    window_s: float = Field(5.0, gt=0, description="a hypothesis is kept this long after onset")
+    spacing_s: float = Field(0.5, gt=0, description="a hypothesis opens this often")
+    probability: float = Field(
+        0.999999,
+        gt=0,
+        lt=1,
+        description="χ²_1 quantile of the likelihood ratio (several hypotheses are tested at"
+        " every update)",
+    )
+    min_updates: int = Field(5, ge=1, description="no decision before this many updates")
+
+
 class FederatedOptions(_Strict):
     """The federated master (seed 003 §4): sharing, reset mode, fusion period, fault isolation."""
 
@@ -103,6 +118,7 @@ class FilterOptions(_Strict):
         "centralized"
     )
     federated: FederatedOptions = FederatedOptions()
+    jump_detection: JumpDetectionOptions = JumpDetectionOptions()
     dead_reckoning: DeadReckoningOptions = DeadReckoningOptions()
     covariance_step_s: float = Field(0.1, gt=0, description="covariance propagation step")
     discretization: Literal["series", "van_loan"] = "series"

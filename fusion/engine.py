@@ -36,6 +36,7 @@ from fusion.error_model import (
 from fusion.fault_detection import FaultEvent
 from fusion.federated import FederatedFilter
 from fusion.filter_bank import CentralizedFilter, FilterBank
+from fusion.jumps import JumpDetector, jump_states
 from fusion.kalman import KalmanFilter, UpdateResult
 from fusion.plugin import MeasurementContext, Plugin, create_plugin
 from fusion.recording import ImuSpec, Recording
@@ -268,6 +269,8 @@ class Engine:
             imu.t, imu.gyro, imu.accel, self.initial_state(), coning_sculling=cfg.coning_sculling
         )
         bank = self.filter_bank()
+        states = jump_states(self.layout)
+        jumps = JumpDetector(self.layout, states, cfg.jump_detection) if states else None
         t0, t_end = float(imu.t[0]), float(imu.t[-1])
         rate = self.config.output.rate_hz
         output_times = np.arange(t0 + 1.0 / rate, t_end + 1e-9, 1.0 / rate) if rate else np.empty(0)
@@ -306,6 +309,8 @@ class Engine:
                 phi, qd = self.model.discrete(sins.nav, f_n, sins.c_b_n, dt)
                 bank.predict(phi, qd)
                 t_cov = te
+                if jumps is not None:
+                    jumps.step(te, bank)
             prior = bank.smoothing_state() if smoother is not None else None
             updated = False
             is_output = False
@@ -314,7 +319,7 @@ class Engine:
                 if src < 0:
                     is_output |= src == OUTPUT or (src == GRID and rate is None)
                     continue
-                updated |= self._update(src, int(indices[k]), te, sins, bank, logs)
+                updated |= self._update(src, int(indices[k]), te, sins, bank, logs, jumps)
             posterior = bank.smoothing_state() if smoother is not None else None
             dx = np.zeros(15)
             if bank.fusion_due(te, updated):
@@ -448,6 +453,7 @@ class Engine:
         sins: Strapdown,
         bank: FilterBank,
         logs: dict[str, InnovationLog],
+        jumps: JumpDetector | None,
     ) -> bool:
         plugin = self.plugins[src]
         layout, kf = bank.filter_of(src)
@@ -455,8 +461,13 @@ class Engine:
         m = plugin.measure(index, self._context(sins, layout, kf, t, shared))
         if m is None:
             return False
+        signature = jumps.innovation_signature(bank, src, m.H) if jumps is not None else None
         res = kf.update(m.z, m.H, m.R, self.gates[src], shared)
         bank.record(src, t, res, m.suspect)
+        if jumps is not None and signature is not None:
+            event = jumps.observe(t, bank, src, signature, res)
+            if event is not None:
+                bank.faults.append(event)
         logs[plugin.name].append(t, res, m.suspect)
         return res.accepted
 

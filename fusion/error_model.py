@@ -89,6 +89,15 @@ class StateBlock:
         Continuous process-noise density (σ² per second) of each state; 0 for a constant.
     correlation_time_s
         First-order Gauss–Markov correlation time, or ``None`` for a random walk / constant.
+    may_jump
+        The state can change abruptly (a wheel starting to slip): its jumps are detected,
+        estimated and taken in (:mod:`fusion.jumps`).
+    rest
+        A value a jumping state returns to exactly (a slip ends): a jump that brings it back
+        within 3σ of ``rest`` sets it there. ``None``: no such value.
+    leaves_rest
+        +1 or −1: the only direction in which the state leaves ``rest`` (a slipping wheel turns
+        more than the machine travels, so its slip ratio only rises from 0); 0: either.
     """
 
     name: str
@@ -96,6 +105,9 @@ class StateBlock:
     initial_sigma: tuple[float, ...]
     noise_density: tuple[float, ...] = ()
     correlation_time_s: float | None = None
+    may_jump: bool = False
+    rest: float | None = None
+    leaves_rest: int = 0
 
     @property
     def size(self) -> int:

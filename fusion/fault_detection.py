@@ -149,6 +149,14 @@ class FaultMonitor:
             return FaultEvent(t, self.local, statistic, threshold, READMIT, "consistent for hold")
         return None
 
+    def forget(self) -> None:
+        """Empty the windows (a jump taken in, :mod:`fusion.jumps`, explains what they hold);
+        isolation and the clean time are kept."""
+        self._window.clear()
+        self._nis_sum = 0.0
+        self._dof_sum = 0
+        self._means.clear()
+
     def _mean_test(
         self, t: float, source: str, whitened: NDArray[np.float64] | None
     ) -> tuple[float, float]:

@@ -40,6 +40,12 @@ precise local gets the larger share and the imprecise one a loose reset (it lear
 sensor again). The trace mixes units (m², (m/s)², rad²) and is dominated by position and
 velocity, as in the seed. Shares are recomputed at each fusion from the healthy locals' P_cc.
 
+Jump hypotheses (:mod:`fusion.jumps`): their signature columns ride along with each local's
+estimate — propagated and updated with it, fused with the same weights (E_g = P_g Σ P_i,cc⁻¹
+E_i,c), reset like it (own rows through the regression), never fed back. A jump taken in moves
+every local at unit share; between update rounds, where every local holds the fused estimate,
+that is exactly the centralized filter's x + E Δ̂, P + E σ²_Δ Eᵀ.
+
 Fault isolation (:mod:`fusion.fault_detection`): an isolated local is excluded from the fusion and
 from resets and keeps filtering on its own (only re-referenced); on re-admission it is
 re-initialized from the global estimate like a reset, with the mean share of the healthy locals.
@@ -58,7 +64,7 @@ from numpy.typing import NDArray
 from fusion.config import FederatedOptions
 from fusion.error_model import POSITION, StateLayout
 from fusion.fault_detection import READMIT, FaultEvent, FaultMonitor
-from fusion.filter_bank import COMMON
+from fusion.filter_bank import COMMON, condition_on_state
 from fusion.kalman import KalmanFilter, UpdateResult
 
 N_COMMON = 15
@@ -84,18 +90,34 @@ class LocalFilter:
         gain = (_spd_inverse(p[COMMON, COMMON]) @ p[COMMON, OWN]).T
         return gain, p[OWN, OWN] - gain @ p[COMMON, OWN]
 
-    def reset(self, x_global: NDArray[np.float64], p_global: NDArray[np.float64]) -> None:
+    def reset(
+        self,
+        x_global: NDArray[np.float64],
+        p_global: NDArray[np.float64],
+        e_global: NDArray[np.float64],
+    ) -> None:
         """Reset the common states to the global estimate, carrying the own states along.
 
         ``x_global`` is relative to the SINS *before* feedback; afterwards the local's common
-        error estimate is zero.
+        error estimate is zero. The signature columns follow the same regression to
+        ``e_global`` (they are not fed back).
         """
-        x = self.kf.x
+        x, e = self.kf.x, self.kf.signatures
         regression = self.regression() if x.size > N_COMMON else None
         if regression is not None:
             x[OWN] += regression[0] @ (x_global - x[COMMON])
+            e[OWN] += regression[0] @ (e_global - e[COMMON])
         self.kf.P = self._with_common_covariance(p_global / self.beta, regression)
         x[COMMON] = 0.0
+        e[COMMON] = e_global
+
+    def accommodate(self, column: int, jump: float, variance: float) -> None:
+        """Take in a jump along signature column E at unit share: x ← x + E·jump and
+        P ← P + E·variance·Eᵀ with the common marginal at full share (then back to 1/β_i)."""
+        e = self.kf.signatures[:, column]
+        self.kf.x += e * jump
+        self.kf.P = self.unit_share_covariance() + variance * np.outer(e, e)
+        self._set_common_covariance(self.kf.P[COMMON, COMMON] / self.beta)
 
     def predict(self, phi: NDArray[np.float64], qd: NDArray[np.float64]) -> None:
         """Time update with this local's share of the common information (see the module
@@ -150,22 +172,23 @@ def _spd_inverse(p: NDArray[np.float64]) -> NDArray[np.float64]:
 
 def _fuse(
     locals_: Sequence[LocalFilter], master: KalmanFilter | None
-) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-    """Information fusion of the common states (eq. 35) in a diagonally scaled space."""
-    members = [(f.kf.x[COMMON], f.kf.P[COMMON, COMMON]) for f in locals_]
+) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+    """Information fusion of the common states (eq. 35) in a diagonally scaled space; the
+    signature columns are fused with the same weights. Returns x_g, P_g and E_g."""
+    members = [(f.kf.x[COMMON], f.kf.signatures[COMMON], f.kf.P[COMMON, COMMON]) for f in locals_]
     if master is not None:
-        members.append((master.x, master.P))
-    scale = np.sqrt(np.diag(members[0][1]))
+        members.append((master.x, master.signatures, master.P))
+    scale = np.sqrt(np.diag(members[0][2]))
     info = np.zeros((N_COMMON, N_COMMON))
-    vector = np.zeros(N_COMMON)
-    for x, p in members:
+    vector = np.zeros((N_COMMON, 1 + members[0][1].shape[1]))
+    for x, e, p in members:
         info_i = _spd_inverse(p / np.outer(scale, scale))
         info += info_i
-        vector += info_i @ (x / scale)
+        vector += info_i @ (np.column_stack([x, e]) / scale[:, None])
     p_hat = _spd_inverse(info)
-    x_g = scale * (p_hat @ vector)
+    fused = scale[:, None] * (p_hat @ vector)
     p_g = p_hat * np.outer(scale, scale)
-    return x_g, 0.5 * (p_g + p_g.T)
+    return fused[:, 0], 0.5 * (p_g + p_g.T), fused[:, 1:]
 
 
 class FederatedFilter:
@@ -227,7 +250,9 @@ class FederatedFilter:
         )
         self._last_fusion = -np.inf
         self._position = layout.slice(POSITION)
-        self._fused: tuple[NDArray[np.float64], NDArray[np.float64]] | None = None
+        self._fused: tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]] | None = (
+            None
+        )
 
     def predict(self, phi: NDArray[np.float64], qd: NDArray[np.float64]) -> None:
         """Time update of every local (common process noise scaled by 1/β_i) and the master."""
@@ -261,6 +286,52 @@ class FederatedFilter:
             self.faults.append(event)
             f.reinitialize = event.action == READMIT
 
+    def in_fusion(self, plugin: int) -> bool:
+        """Whether the plugin's local is a member of the fusion (not isolated)."""
+        return self.locals[self._local_of_plugin[plugin]] in self._members()
+
+    def signatures_of(self, plugin: int) -> NDArray[np.float64]:
+        """The signature columns of the plugin's local."""
+        return self.filter_of(plugin)[1].signatures
+
+    def add_signatures(self, columns: NDArray[np.float64]) -> None:
+        """Append columns to every local (its index set's rows) and the master."""
+        for f in self.locals:
+            f.kf.signatures = np.hstack([f.kf.signatures, columns[f.index]])
+        if self.master is not None:
+            self.master.signatures = np.hstack([self.master.signatures, columns[COMMON]])
+        self._fused = None
+
+    def keep_signatures(self, keep: NDArray[np.bool_]) -> None:
+        """Drop the unmarked columns everywhere."""
+        for kf in self._filters():
+            kf.signatures = kf.signatures[:, keep]
+        self._fused = None
+
+    def accommodate(self, column: int, jump: float, variance: float) -> None:
+        """Take the jump into every local and the master, each along its own signature column
+        (fused, the global estimate moves by E_g·jump and P_g grows by E_g·variance·E_gᵀ); the
+        innovations the monitors hold are explained by it and forgotten."""
+        for f in self.locals:
+            f.accommodate(column, jump, variance)
+            f.monitor.forget()
+        if self.master is not None:
+            e = self.master.signatures[:, column]
+            self.master.x += e * jump
+            self.master.P += variance * np.outer(e, e) / self.options.master_share
+        self._fused = None
+
+    def condition(self, index: int, value: float) -> None:
+        """Condition the local that holds state ``index`` (a plugin state) on its value."""
+        for f in self.locals:
+            where = np.flatnonzero(f.index == index)
+            if where.size:
+                condition_on_state(f.kf, int(where[0]), value)
+        self._fused = None
+
+    def _filters(self) -> list[KalmanFilter]:
+        return [f.kf for f in self.locals] + ([self.master] if self.master is not None else [])
+
     def fusion_due(self, t: float, updated: bool) -> bool:
         """After every update round, or every ``fusion_period_s``."""
         period = self.options.fusion_period_s
@@ -275,6 +346,9 @@ class FederatedFilter:
     def _global(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         """The fused estimate (eq. 35) of the current members, computed once per change: the
         output, the smoother and the feedback all ask for it at the same step."""
+        return self._fusion()[:2]
+
+    def _fusion(self) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
         if self._fused is None:
             self._fused = _fuse(self._members(), self.master)
         return self._fused
@@ -283,15 +357,15 @@ class FederatedFilter:
         """Fuse, update the shares, reset or re-reference every local; return x_g."""
         self._last_fusion = t
         members = self._members()
-        x_g, p_g = self._global()
+        x_g, p_g, e_g = self._fusion()
         self._update_shares(members)
         rejoined = False
         for f in self.locals:
             if f in members and self.options.mode == "fusion_reset":
-                f.reset(x_g, p_g)
+                f.reset(x_g, p_g, e_g)
             elif f.reinitialize:
                 f.beta = float(np.mean([m.beta for m in members]))
-                f.reset(x_g, p_g)
+                f.reset(x_g, p_g, e_g)
                 f.reinitialize = False
                 rejoined = True
             else:
@@ -300,11 +374,12 @@ class FederatedFilter:
             if self.options.mode == "fusion_reset":
                 self.master.x[:] = 0.0
                 self.master.P = p_g / self.options.master_share
+                self.master.signatures = e_g.copy()
             else:
                 self.master.x -= x_g
         # Reset or re-referenced, the same members fuse to (0, P_g); a re-admitted local changes
         # the members.
-        self._fused = None if rejoined else (np.zeros(N_COMMON), p_g)
+        self._fused = None if rejoined else (np.zeros(N_COMMON), p_g, e_g)
         return x_g
 
     def _update_shares(self, members: Sequence[LocalFilter]) -> None:

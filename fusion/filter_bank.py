@@ -5,7 +5,9 @@ covariance step it receives Φ and Q_d over the full state layout (the 15 common
 followed by every plugin's states, one centralized specification). For a plugin's epoch it names
 the filter that serves the plugin (its layout and :class:`~fusion.kalman.KalmanFilter`). After an
 update round it returns the correction of the 15 common states to feed back into the SINS and
-re-references its estimates to the corrected SINS (closed loop). The centralized filter is one
+re-references its estimates to the corrected SINS (closed loop). It carries the signature
+columns of the jump hypotheses (:mod:`fusion.jumps`) through the same linear steps as its
+estimates, and takes in a jump the detector declares. The centralized filter is one
 Kalman filter over the whole layout; :mod:`fusion.federated` cuts local filters out of the same
 layout by index sets.
 """
@@ -22,6 +24,13 @@ from fusion.fault_detection import FaultEvent
 from fusion.kalman import KalmanFilter, UpdateResult
 
 COMMON = slice(0, 15)
+
+
+def condition_on_state(kf: KalmanFilter, index: int, value: float) -> None:
+    """Condition ``kf`` on its state ``index`` being exactly ``value`` (R = 10⁻¹² P_jj)."""
+    h = np.zeros((1, kf.dim))
+    h[0, index] = 1.0
+    kf.update(np.array([value]), h, np.array([[1e-12 * kf.P[index, index]]]))
 
 
 class FilterBank(Protocol):
@@ -42,6 +51,25 @@ class FilterBank(Protocol):
 
     def record(self, plugin: int, t: float, result: UpdateResult, suspect: bool) -> None:
         """Note the outcome of one update of plugin ``plugin`` (fault monitoring)."""
+
+    def in_fusion(self, plugin: int) -> bool:
+        """Whether plugin ``plugin``'s updates reach the fused estimate now."""
+
+    def signatures_of(self, plugin: int) -> NDArray[np.float64]:
+        """The signature columns of the filter that serves ``plugin`` (its layout's rows)."""
+
+    def add_signatures(self, columns: NDArray[np.float64]) -> None:
+        """Append signature columns given over the full layout (n × k)."""
+
+    def keep_signatures(self, keep: NDArray[np.bool_]) -> None:
+        """Keep only the signature columns marked in ``keep``."""
+
+    def accommodate(self, column: int, jump: float, variance: float) -> None:
+        """Take in a jump along signature column E: x ← x + E·jump, P ← P + E·variance·Eᵀ."""
+
+    def condition(self, index: int, value: float) -> None:
+        """Set state ``index`` of the full layout to ``value`` by conditioning on it (the
+        correlated states follow)."""
 
     def fusion_due(self, t: float, updated: bool) -> bool:
         """Whether to compute and feed back a correction now."""
@@ -88,7 +116,33 @@ class CentralizedFilter:
         return None
 
     def record(self, plugin: int, t: float, result: UpdateResult, suspect: bool) -> None:
-        """Nothing to monitor: gating is the CKF's only defence."""
+        """Nothing to monitor: gating (and jump detection) are the CKF's defences."""
+
+    def in_fusion(self, plugin: int) -> bool:
+        """Every update reaches the one filter."""
+        return True
+
+    def signatures_of(self, plugin: int) -> NDArray[np.float64]:
+        """The filter's signature columns."""
+        return self.kf.signatures
+
+    def add_signatures(self, columns: NDArray[np.float64]) -> None:
+        """Append columns."""
+        self.kf.signatures = np.hstack([self.kf.signatures, columns])
+
+    def keep_signatures(self, keep: NDArray[np.bool_]) -> None:
+        """Drop the unmarked columns."""
+        self.kf.signatures = self.kf.signatures[:, keep]
+
+    def accommodate(self, column: int, jump: float, variance: float) -> None:
+        """x ← x + E·jump, P ← P + E·variance·Eᵀ."""
+        e = self.kf.signatures[:, column]
+        self.kf.x += e * jump
+        self.kf.P += variance * np.outer(e, e)
+
+    def condition(self, index: int, value: float) -> None:
+        """A Kalman update on ``x[index] = value`` with a negligible R."""
+        condition_on_state(self.kf, index, value)
 
     def fusion_due(self, t: float, updated: bool) -> bool:
         """Feed back after every update round."""

@@ -10,6 +10,12 @@ For a measurement ``z = H x + v``, ``v ~ N(0, R)`` the update computes ::
 
 A measurement whose NIS exceeds the χ² quantile of the configured probability is rejected
 (gating is off unless a probability is given). Prediction is ``x ← Φ x``, ``P ← Φ P Φᵀ + Q_d``.
+
+*Signature columns* (``signatures``, n × c, none by default) follow the estimate's linear
+dynamics without a measurement input, ``E ← Φ E`` and ``E ← (I − K H) E``: a column started at
+a unit jump of one state is the part of that jump the filter has not yet absorbed (the
+generalized-likelihood-ratio signature of :mod:`fusion.jumps`). Closed-loop feedback moves the
+estimate into the SINS but leaves the columns alone.
 """
 
 from __future__ import annotations
@@ -45,6 +51,8 @@ class UpdateResult:
         Normalized innovation squared ``νᵀ S⁻¹ ν``.
     threshold
         Gate threshold used, or ``None`` when gating is off.
+    whitening
+        The lower Cholesky factor L of the S that whitened the innovation.
     """
 
     accepted: bool
@@ -52,6 +60,7 @@ class UpdateResult:
     whitened: NDArray[np.float64]
     nis: float
     threshold: float | None
+    whitening: NDArray[np.float64]
 
     @property
     def dof(self) -> int:
@@ -73,6 +82,7 @@ class KalmanFilter:
     def __init__(self, x: NDArray[np.float64], p: NDArray[np.float64]) -> None:
         self.x = np.array(x, dtype=float)
         self.P = np.array(p, dtype=float)
+        self.signatures = np.zeros((self.dim, 0))
         self._identity = np.eye(self.dim)
 
     @property
@@ -83,6 +93,8 @@ class KalmanFilter:
     def predict(self, phi: NDArray[np.float64], qd: NDArray[np.float64]) -> None:
         """Time update with transition ``phi`` and discrete process noise ``qd``."""
         self.x = phi @ self.x
+        if self.signatures.shape[1]:
+            self.signatures = phi @ self.signatures
         p = phi @ self.P @ phi.T + qd
         self.P = 0.5 * (p + p.T)
 
@@ -105,16 +117,25 @@ class KalmanFilter:
         h = np.ascontiguousarray(np.atleast_2d(h), dtype=float)
         r = np.ascontiguousarray(np.atleast_2d(r), dtype=float)
         nu, whitened, chol, ph_t = _innovation(self.x, self.P, z, h, r)
+        whitening = chol
         if statistic_covariance is not None:
-            whitened = _innovation(self.x, statistic_covariance, z, h, r)[1]
+            _, whitened, whitening, _ = _innovation(self.x, statistic_covariance, z, h, r)
         nis = float(whitened @ whitened)
         threshold = None
         if gate_probability is not None:
             threshold = chi2_threshold(len(z), gate_probability)
             if nis > threshold:
-                return UpdateResult(False, nu, whitened, nis, threshold)
-        self.x, self.P = _joseph(self.x, self.P, nu, chol, ph_t, h, r, self._identity)
-        return UpdateResult(True, nu, whitened, nis, threshold)
+                return UpdateResult(False, nu, whitened, nis, threshold, whitening)
+        self.x, self.P, gain = _joseph(self.x, self.P, nu, chol, ph_t, h, r, self._identity)
+        if self.signatures.shape[1]:
+            self.signatures = self.signatures - gain @ (h @ self.signatures)
+        return UpdateResult(True, nu, whitened, nis, threshold, whitening)
+
+
+def whiten(lower: NDArray[np.float64], b: NDArray[np.float64]) -> NDArray[np.float64]:
+    """``L⁻¹ b`` for the lower Cholesky factor of an :class:`UpdateResult` (``b`` (m,) or
+    (m, k)): the whitened form of anything the innovation carries."""
+    return _forward_substitution(lower, np.ascontiguousarray(b, dtype=np.float64))
 
 
 @numba.njit(cache=True)
@@ -168,10 +189,10 @@ def _joseph(
     h: NDArray[np.float64],
     r: NDArray[np.float64],
     identity: NDArray[np.float64],
-) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-    """Gain K = P Hᵀ S⁻¹ by two triangular solves, then the state and Joseph-form covariance."""
+) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+    """Gain K = P Hᵀ S⁻¹ by two triangular solves; the new state, Joseph-form covariance, K."""
     gain = _back_substitution(chol, _forward_substitution(chol, np.ascontiguousarray(ph_t.T))).T
     x_new = x + gain @ nu
     i_kh = identity - gain @ h
     p_new = i_kh @ p @ i_kh.T + gain @ r @ gain.T
-    return x_new, 0.5 * (p_new + p_new.T)
+    return x_new, 0.5 * (p_new + p_new.T), gain

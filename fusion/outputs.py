@@ -8,6 +8,7 @@ import numpy as np
 
 from fusion.engine import RunResult
 from fusion.fault_detection import ISOLATE, READMIT, FaultEvent
+from fusion.jumps import JUMP
 from fusion.metrics import compute_metrics, write_metrics_json
 from fusion.recording import Recording
 from fusion.solution import write_solution
@@ -21,7 +22,7 @@ def write_outputs(
     out.mkdir(parents=True, exist_ok=True)
     files = {"solution": out / "solution.csv"}
     write_solution(result.solution, files["solution"])
-    if result.config.filter.architecture == "federated":
+    if result.config.filter.architecture == "federated" or result.faults:
         files["faults"] = out / "faults.csv"
         write_faults(result.faults, files["faults"])
     solutions = {"solution.csv": result.solution}
@@ -47,7 +48,8 @@ def write_outputs(
 
 
 def write_faults(events: list[FaultEvent], path: Path) -> None:
-    """``faults.csv``: one row per isolation or re-admission of a local filter."""
+    """``faults.csv``: one row per isolation or re-admission of a local filter, and per state
+    jump taken in (:mod:`fusion.jumps`)."""
     rows = ["time_s,local,statistic,threshold,action,reason"]
     rows += [
         f"{e.t:.3f},{e.local},{e.statistic:.6g},{e.threshold:.6g},{e.action},{e.reason}"
@@ -72,11 +74,11 @@ def summary(result: RunResult, recording: Recording) -> str:
             f"plugin     {name}: {n} updates, {rejected} rejected, "
             f"whitened-innovation RMS {log.whitened_rms():.2f}"
         )
-    if result.config.filter.architecture == "federated":
-        actions = [e.action for e in result.faults]
+    actions = [e.action for e in result.faults]
+    if result.config.filter.architecture == "federated" or actions:
         lines.append(
             f"faults     {actions.count(ISOLATE)} isolations, {actions.count(READMIT)} "
-            "re-admissions (faults.csv)"
+            f"re-admissions, {actions.count(JUMP)} state jumps taken in (faults.csv)"
         )
     estimated = result.config.filter.architecture in ("centralized", "federated")
     for block in result.layout.blocks[3:] if estimated else ():

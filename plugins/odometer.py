@@ -26,6 +26,18 @@ shearer turns at < 0.1°/s, so ω × l is below 1 mm/s for a lever arm of a metr
 δα_y does not enter any row (a rotation about the travel direction leaves v^m unchanged), so its
 σ stays at its prior — the seed's observability analysis (§3.3).
 
+Wheel slip (option ``slip_detection``): a wheel that slips over-reads by a ratio s from one
+sample to the next, ``s̃ = (1 + δk_D)(1 + s) v``. The plugin then owns a slip state s (its
+column in H is δk_D's: to first order only their sum is seen), zero and constant except for
+jumps, which :mod:`fusion.jumps` detects, estimates and takes in: the velocity and position the
+slip had pulled are put back, and the odometer keeps aiding with the slipping scale (isolating
+it would leave a MEMS SINS to coast, which drifts further than the slip pulls). The wheel's
+grip returning is the jump back to s = 0 (the state's rest), where s is then set exactly, so a
+slip does not leave its estimation error in δk_D. A slipping wheel turns more than the machine
+travels, so s leaves rest upwards only: the end of a slip whose onset went unnoticed (at a
+crawl the step is within the encoder noise) is not taken for a negative slip. A locked,
+skidding wheel (under-reading) is left to the fault monitor.
+
 Zero angular rate at standstill (option ``zero_angular_rate``, mode ``odometer``): while every
 odometer reading of the past ``rest_guard_s`` is within 3σ of zero the machine stands, and the
 gyro mean since the previous reading is the earth rate plus the bias (:mod:`plugins.zaru`). The
@@ -48,6 +60,8 @@ from fusion.plugin import Measurement, MeasurementContext, Plugin, PluginOptions
 from fusion.recording import Recording
 from plugins.zaru import ZeroAngularRate
 
+SLIP_PRIOR_SIGMA = 1e-4  # no slip at the start; a jump opens it (fusion.jumps)
+
 
 class OdometerOptions(PluginOptions):
     """Options of the odometer / motion-constraint plugin."""
@@ -61,6 +75,11 @@ class OdometerOptions(PluginOptions):
     )
     mounting_sigma_deg: float = Field(2.0, gt=0, description="prior σ of each δα")
     scale_sigma: float = Field(0.03, gt=0, description="prior σ of δk_D")
+    slip_detection: bool = Field(
+        False,
+        description="own a slip-ratio state whose jumps (a wheel starting and stopping to slip)"
+        " are detected, estimated and taken in (fusion.jumps; options filter.jump_detection)",
+    )
     constraint_rate_hz: float = Field(10.0, gt=0, description="motion_constraint mode only")
     zero_angular_rate: bool = Field(
         False, description="ZARU while the odometer shows standstill (mode odometer only)"
@@ -130,6 +149,17 @@ class Odometer(Plugin):
             blocks.append(
                 StateBlock(f"{self.name}.scale_error", ("k",), (self.options.scale_sigma,))
             )
+        if self.use_speed and self.options.slip_detection:
+            blocks.append(
+                StateBlock(
+                    f"{self.name}.slip",
+                    ("s",),
+                    (SLIP_PRIOR_SIGMA,),
+                    may_jump=True,
+                    rest=0.0,
+                    leaves_rest=1,
+                )
+            )
         return tuple(blocks)
 
     def epochs(self) -> NDArray[np.float64]:
@@ -164,7 +194,7 @@ class Odometer(Plugin):
         h[:, ctx.layout.slice(ATTITUDE)] = -c_n_m @ skew(ctx.velocity)
         h[:, ctx.layout.slice(f"{self.name}.mounting_angles")] = -self.c_b_m @ skew(v_b)
         if self.use_speed:
-            h[1, ctx.layout.slice(f"{self.name}.scale_error")] = -(self.c_b_m @ v_b)[1]
+            h[1, self._scale_states(ctx)] = -(self.c_b_m @ v_b)[1]
         return Measurement(z[self.rows], h[self.rows], np.diag(self.variance))
 
     def _reference_speed(self, index: int, ctx: MeasurementContext) -> float:
@@ -179,5 +209,12 @@ class Odometer(Plugin):
         previous = max(index - 1, 0)
         if self.still[previous]:
             return 0.0
-        scale = ctx.x[ctx.layout.slice(f"{self.name}.scale_error")][0]
+        scale = float(ctx.x[self._scale_states(ctx)].sum())
         return float(self.speed[previous] / (1.0 + scale))
+
+    def _scale_states(self, ctx: MeasurementContext) -> list[int]:
+        """Indices of δk_D and, with slip detection, s in the filter's layout."""
+        names = [f"{self.name}.scale_error"]
+        if self.options.slip_detection:
+            names.append(f"{self.name}.slip")
+        return [ctx.layout.slice(n).start for n in names]

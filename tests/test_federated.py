@@ -100,6 +100,53 @@ def test_fusion_reset_equals_centralized_with_a_local_owning_states() -> None:
         np.testing.assert_allclose(p_f, p_c, rtol=1e-7, atol=1e-14, err_msg=f"step {step}")
 
 
+@pytest.mark.parametrize("master_share", [0.0, 0.3])
+def test_signatures_and_jumps_taken_in_match_the_centralized_filter(master_share: float) -> None:
+    """Signature columns (fusion.jumps) are fused and reset like the estimates, and a jump taken
+    in between rounds moves every local so that the fused result is the centralized filter's:
+    columns, state and covariance equal to the CKF's to 1e-8, with a local owning states and a
+    master share. (Within a round, after some locals have updated, it is as approximate as a
+    second plugin's update in the same round.)"""
+    rng = np.random.default_rng(11)
+    own = StateBlock("a.bias", ("b1", "b2", "b3"), (0.2, 0.1, 0.05), (1e-4, 1e-4, 1e-4))
+    layout = _layout().extended([own])
+    options = FederatedOptions(sharing="trace", master_share=master_share)
+    fed = FederatedFilter(layout, [["a.bias"], [], []], ["a", "b", "c"], options)
+    ckf = CentralizedFilter(layout)
+    for step in range(60):
+        phi_c, qd_c = _random_system(rng)
+        phi, qd = np.eye(18), np.zeros((18, 18))
+        phi[:15, :15], qd[:15, :15] = phi_c, qd_c
+        phi[15:, :15] = 0.05 * rng.standard_normal((3, 15))
+        qd[15:, 15:] = np.diag(rng.uniform(1e-6, 1e-4, 3))
+        h = np.zeros((2, 18))
+        h[:, :15] = rng.standard_normal((2, 15))
+        plugin = step % 3
+        if plugin == 0:
+            h[:, 15:] = rng.standard_normal((2, 3))
+        r = np.diag(rng.uniform(0.01, 1.0, 2))
+        z = rng.standard_normal(2)
+        for bank in (fed, ckf):
+            if step == 30:  # between rounds, where every local holds the fused estimate
+                bank.accommodate(1, 0.7, 0.01)
+            bank.predict(phi, qd)
+            if step in (10, 20):  # a jump of the own state b2 and one of common state 4
+                bank.add_signatures(np.eye(18)[:, [16, 4]])
+            local_layout, kf = bank.filter_of(plugin)
+            kf.update(z, h[:, : local_layout.dim], r)
+            if step == 45:
+                bank.keep_signatures(np.array([True, False, True, True]))
+        np.testing.assert_allclose(fed.feedback(step), ckf.feedback(step), rtol=1e-8, atol=1e-12)
+        x_f, p_f = fed.estimate()
+        x_c, p_c = ckf.estimate()
+        np.testing.assert_allclose(x_f, x_c, rtol=1e-8, atol=1e-12, err_msg=f"step {step}")
+        np.testing.assert_allclose(p_f, p_c, rtol=1e-7, atol=1e-14, err_msg=f"step {step}")
+        e_c = ckf.signatures_of(0)
+        for f in fed.locals:  # after the reset every local holds the fused columns
+            np.testing.assert_allclose(f.kf.signatures, e_c[f.index], rtol=1e-8, atol=1e-12)
+    assert ckf.signatures_of(0).shape[1] == 3
+
+
 def test_single_local_equals_centralized_end_to_end(tmp_path: Path) -> None:
     """One local holding every plugin, β = 1: the federated engine run is the CKF run."""
     simulate(
@@ -148,7 +195,7 @@ def test_reset_carries_own_states_as_a_conditional() -> None:
     f.kf.P = a @ a.T + np.eye(15)
     f.kf.x = rng.standard_normal(15)
     x_g = rng.standard_normal(15)
-    f.reset(x_g, 0.5 * f.kf.P[:15, :15])
+    f.reset(x_g, 0.5 * f.kf.P[:15, :15], np.zeros((15, 0)))
     np.testing.assert_array_equal(f.kf.x, 0.0)
     np.linalg.cholesky(f.kf.P)
 
