@@ -65,39 +65,57 @@ def test_fusion_reset_equals_centralized_on_common_states(
         )
 
 
+def _banks_with_an_owning_local(
+    options: FederatedOptions,
+) -> tuple[FederatedFilter, CentralizedFilter]:
+    """Three locals, the first owning three states, and the CKF over the same layout."""
+    own = StateBlock("a.bias", ("b1", "b2", "b3"), (0.2, 0.1, 0.05), (1e-4, 1e-4, 1e-4))
+    layout = _layout().extended([own])
+    fed = FederatedFilter(layout, [["a.bias"], [], []], ["a", "b", "c"], options)
+    return fed, CentralizedFilter(layout)
+
+
+def _owning_step(
+    rng: np.random.Generator, step: int
+) -> tuple[np.ndarray, np.ndarray, int, np.ndarray, np.ndarray, np.ndarray]:
+    """Random Φ and Q_d (own states driven by the common ones) and one update (plugin, H, R, z)
+    of the local ``step % 3``; only the first local's H sees the own states."""
+    phi_c, qd_c = _random_system(rng)
+    phi, qd = np.eye(18), np.zeros((18, 18))
+    phi[:15, :15], qd[:15, :15] = phi_c, qd_c
+    phi[15:, :15] = 0.05 * rng.standard_normal((3, 15))
+    qd[15:, 15:] = np.diag(rng.uniform(1e-6, 1e-4, 3))
+    plugin = step % 3
+    h = np.zeros((2, 18))
+    h[:, :15] = rng.standard_normal((2, 15))
+    if plugin == 0:
+        h[:, 15:] = rng.standard_normal((2, 3))
+    r = np.diag(rng.uniform(0.01, 1.0, 2))
+    return phi, qd, plugin, h, r, rng.standard_normal(2)
+
+
+def _assert_same_round(fed: FederatedFilter, ckf: CentralizedFilter, step: int) -> None:
+    """Feedback, estimate and covariance of the two banks agree."""
+    np.testing.assert_allclose(fed.feedback(step), ckf.feedback(step), rtol=1e-8, atol=1e-12)
+    x_f, p_f = fed.estimate()
+    x_c, p_c = ckf.estimate()
+    np.testing.assert_allclose(x_f, x_c, rtol=1e-8, atol=1e-12, err_msg=f"step {step}")
+    np.testing.assert_allclose(p_f, p_c, rtol=1e-7, atol=1e-14, err_msg=f"step {step}")
+
+
 def test_fusion_reset_equals_centralized_with_a_local_owning_states() -> None:
     """A local with its own states (an odometer's mounting angles and scale, say) beside locals
     of common states only: propagating its own states' conditional at unit share keeps the
     federated filter equal to the centralized one, own states included."""
     rng = np.random.default_rng(5)
-    own = StateBlock("a.bias", ("b1", "b2", "b3"), (0.2, 0.1, 0.05), (1e-4, 1e-4, 1e-4))
-    layout = _layout().extended([own])
-    options = FederatedOptions(sharing="trace")
-    fed = FederatedFilter(layout, [["a.bias"], [], []], ["a", "b", "c"], options)
-    ckf = CentralizedFilter(layout)
+    fed, ckf = _banks_with_an_owning_local(FederatedOptions(sharing="trace"))
     for step in range(60):
-        phi_c, qd_c = _random_system(rng)
-        phi, qd = np.eye(18), np.zeros((18, 18))
-        phi[:15, :15], qd[:15, :15] = phi_c, qd_c
-        phi[15:, :15] = 0.05 * rng.standard_normal((3, 15))  # own states driven by common ones
-        qd[15:, 15:] = np.diag(rng.uniform(1e-6, 1e-4, 3))
-        fed.predict(phi, qd)
-        ckf.predict(phi, qd)
-        plugin = step % 3
-        h = np.zeros((2, 18))
-        h[:, :15] = rng.standard_normal((2, 15))
-        if plugin == 0:
-            h[:, 15:] = rng.standard_normal((2, 3))
-        r = np.diag(rng.uniform(0.01, 1.0, 2))
-        z = rng.standard_normal(2)
+        phi, qd, plugin, h, r, z = _owning_step(rng, step)
         for bank in (fed, ckf):
+            bank.predict(phi, qd)
             local_layout, kf = bank.filter_of(plugin)
             kf.update(z, h[:, : local_layout.dim], r)
-        np.testing.assert_allclose(fed.feedback(step), ckf.feedback(step), rtol=1e-8, atol=1e-12)
-        x_f, p_f = fed.estimate()
-        x_c, p_c = ckf.estimate()
-        np.testing.assert_allclose(x_f, x_c, rtol=1e-8, atol=1e-12, err_msg=f"step {step}")
-        np.testing.assert_allclose(p_f, p_c, rtol=1e-7, atol=1e-14, err_msg=f"step {step}")
+        _assert_same_round(fed, ckf, step)
 
 
 @pytest.mark.parametrize("master_share", [0.0, 0.3])
@@ -108,24 +126,10 @@ def test_signatures_and_jumps_taken_in_match_the_centralized_filter(master_share
     master share. (Within a round, after some locals have updated, it is as approximate as a
     second plugin's update in the same round.)"""
     rng = np.random.default_rng(11)
-    own = StateBlock("a.bias", ("b1", "b2", "b3"), (0.2, 0.1, 0.05), (1e-4, 1e-4, 1e-4))
-    layout = _layout().extended([own])
     options = FederatedOptions(sharing="trace", master_share=master_share)
-    fed = FederatedFilter(layout, [["a.bias"], [], []], ["a", "b", "c"], options)
-    ckf = CentralizedFilter(layout)
+    fed, ckf = _banks_with_an_owning_local(options)
     for step in range(60):
-        phi_c, qd_c = _random_system(rng)
-        phi, qd = np.eye(18), np.zeros((18, 18))
-        phi[:15, :15], qd[:15, :15] = phi_c, qd_c
-        phi[15:, :15] = 0.05 * rng.standard_normal((3, 15))
-        qd[15:, 15:] = np.diag(rng.uniform(1e-6, 1e-4, 3))
-        h = np.zeros((2, 18))
-        h[:, :15] = rng.standard_normal((2, 15))
-        plugin = step % 3
-        if plugin == 0:
-            h[:, 15:] = rng.standard_normal((2, 3))
-        r = np.diag(rng.uniform(0.01, 1.0, 2))
-        z = rng.standard_normal(2)
+        phi, qd, plugin, h, r, z = _owning_step(rng, step)
         for bank in (fed, ckf):
             if step == 30:  # between rounds, where every local holds the fused estimate
                 bank.accommodate(1, 0.7, 0.01)
@@ -136,11 +140,7 @@ def test_signatures_and_jumps_taken_in_match_the_centralized_filter(master_share
             kf.update(z, h[:, : local_layout.dim], r)
             if step == 45:
                 bank.keep_signatures(np.array([True, False, True, True]))
-        np.testing.assert_allclose(fed.feedback(step), ckf.feedback(step), rtol=1e-8, atol=1e-12)
-        x_f, p_f = fed.estimate()
-        x_c, p_c = ckf.estimate()
-        np.testing.assert_allclose(x_f, x_c, rtol=1e-8, atol=1e-12, err_msg=f"step {step}")
-        np.testing.assert_allclose(p_f, p_c, rtol=1e-7, atol=1e-14, err_msg=f"step {step}")
+        _assert_same_round(fed, ckf, step)
         e_c = ckf.signatures_of(0)
         for f in fed.locals:  # after the reset every local holds the fused columns
             np.testing.assert_allclose(f.kf.signatures, e_c[f.index], rtol=1e-8, atol=1e-12)
