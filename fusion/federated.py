@@ -64,7 +64,7 @@ from numpy.typing import NDArray
 from fusion.config import FederatedOptions
 from fusion.error_model import POSITION, StateLayout
 from fusion.fault_detection import READMIT, FaultEvent, FaultMonitor
-from fusion.filter_bank import COMMON, condition_on_state
+from fusion.filter_bank import COMMON
 from fusion.kalman import KalmanFilter, UpdateResult
 
 N_COMMON = 15
@@ -114,9 +114,8 @@ class LocalFilter:
     def accommodate(self, column: int, jump: float, variance: float) -> None:
         """Take in a jump along signature column E at unit share: x ← x + E·jump and
         P ← P + E·variance·Eᵀ with the common marginal at full share (then back to 1/β_i)."""
-        e = self.kf.signatures[:, column]
-        self.kf.x += e * jump
-        self.kf.P = self.unit_share_covariance() + variance * np.outer(e, e)
+        self.kf.P = self.unit_share_covariance()
+        self.kf.take_in(column, jump, variance)
         self._set_common_covariance(self.kf.P[COMMON, COMMON] / self.beta)
 
     def predict(self, phi: NDArray[np.float64], qd: NDArray[np.float64]) -> None:
@@ -316,9 +315,7 @@ class FederatedFilter:
             f.accommodate(column, jump, variance)
             f.monitor.forget()
         if self.master is not None:
-            e = self.master.signatures[:, column]
-            self.master.x += e * jump
-            self.master.P += variance * np.outer(e, e) / self.options.master_share
+            self.master.take_in(column, jump, variance / self.options.master_share)
         self._fused = None
 
     def condition(self, index: int, value: float) -> None:
@@ -326,7 +323,7 @@ class FederatedFilter:
         for f in self.locals:
             where = np.flatnonzero(f.index == index)
             if where.size:
-                condition_on_state(f.kf, int(where[0]), value)
+                f.kf.condition(int(where[0]), value)
         self._fused = None
 
     def _filters(self) -> list[KalmanFilter]:

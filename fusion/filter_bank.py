@@ -26,13 +26,6 @@ from fusion.kalman import KalmanFilter, UpdateResult
 COMMON = slice(0, 15)
 
 
-def condition_on_state(kf: KalmanFilter, index: int, value: float) -> None:
-    """Condition ``kf`` on its state ``index`` being exactly ``value`` (R = 10⁻¹² P_jj)."""
-    h = np.zeros((1, kf.dim))
-    h[0, index] = 1.0
-    kf.update(np.array([value]), h, np.array([[1e-12 * kf.P[index, index]]]))
-
-
 class FilterBank(Protocol):
     """The engine's view of a filter architecture."""
 
@@ -136,13 +129,11 @@ class CentralizedFilter:
 
     def accommodate(self, column: int, jump: float, variance: float) -> None:
         """x ← x + E·jump, P ← P + E·variance·Eᵀ."""
-        e = self.kf.signatures[:, column]
-        self.kf.x += e * jump
-        self.kf.P += variance * np.outer(e, e)
+        self.kf.take_in(column, jump, variance)
 
     def condition(self, index: int, value: float) -> None:
         """A Kalman update on ``x[index] = value`` with a negligible R."""
-        condition_on_state(self.kf, index, value)
+        self.kf.condition(index, value)
 
     def fusion_due(self, t: float, updated: bool) -> bool:
         """Feed back after every update round."""

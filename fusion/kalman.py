@@ -116,10 +116,11 @@ class KalmanFilter:
         z = np.atleast_1d(np.asarray(z, dtype=float))
         h = np.ascontiguousarray(np.atleast_2d(h), dtype=float)
         r = np.ascontiguousarray(np.atleast_2d(r), dtype=float)
-        nu, whitened, chol, ph_t = _innovation(self.x, self.P, z, h, r)
+        nu, chol, ph_t = _innovation(self.x, self.P, z, h, r)
         whitening = chol
         if statistic_covariance is not None:
-            _, whitened, whitening, _ = _innovation(self.x, statistic_covariance, z, h, r)
+            whitening = _s_cholesky(statistic_covariance, h, r)[0]
+        whitened = _forward_substitution(whitening, nu)
         nis = float(whitened @ whitened)
         threshold = None
         if gate_probability is not None:
@@ -130,6 +131,20 @@ class KalmanFilter:
         if self.signatures.shape[1]:
             self.signatures = self.signatures - gain @ (h @ self.signatures)
         return UpdateResult(True, nu, whitened, nis, threshold, whitening)
+
+    def take_in(self, column: int, jump: float, variance: float) -> None:
+        """A jump along signature column E (:mod:`fusion.jumps`): x ← x + E·jump and
+        P ← P + E·variance·Eᵀ."""
+        e = self.signatures[:, column]
+        self.x += e * jump
+        self.P += variance * np.outer(e, e)
+
+    def condition(self, index: int, value: float) -> None:
+        """Condition on state ``index`` being exactly ``value``: an update with H = e_indexᵀ and
+        R = 10⁻¹² P_jj, so the correlated states follow."""
+        h = np.zeros((1, self.dim))
+        h[0, index] = 1.0
+        self.update(np.array([value]), h, np.array([[1e-12 * self.P[index, index]]]))
 
 
 def whiten(lower: NDArray[np.float64], b: NDArray[np.float64]) -> NDArray[np.float64]:
@@ -164,19 +179,26 @@ def _back_substitution(lower: NDArray[np.float64], b: NDArray[np.float64]) -> ND
 
 
 @numba.njit(cache=True)
+def _s_cholesky(
+    p: NDArray[np.float64], h: NDArray[np.float64], r: NDArray[np.float64]
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Lower Cholesky factor L of S = H P Hᵀ + R, and P Hᵀ."""
+    ph_t = p @ h.T
+    s = h @ ph_t + r
+    return np.linalg.cholesky(0.5 * (s + s.T)).astype(np.float64), ph_t
+
+
+@numba.njit(cache=True)
 def _innovation(
     x: NDArray[np.float64],
     p: NDArray[np.float64],
     z: NDArray[np.float64],
     h: NDArray[np.float64],
     r: NDArray[np.float64],
-) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
-    """Innovation ν, whitened innovation L⁻¹ν, Cholesky factor L of S, and P Hᵀ."""
-    ph_t = p @ h.T
-    s = h @ ph_t + r
-    chol = np.linalg.cholesky(0.5 * (s + s.T)).astype(np.float64)
-    nu = z - h @ x
-    return nu, _forward_substitution(chol, nu), chol, ph_t
+) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+    """Innovation ν, Cholesky factor L of S, and P Hᵀ."""
+    chol, ph_t = _s_cholesky(p, h, r)
+    return z - h @ x, chol, ph_t
 
 
 @numba.njit(cache=True)

@@ -186,20 +186,23 @@ class Odometer(Plugin):
         measured = np.zeros(3)
         v_b = c_n_b @ ctx.velocity
         if self.use_speed:
+            scale_states = self._scale_states(ctx)
             measured[1] = self.speed[index]
-            v_b = self.c_b_m.T @ np.array([0.0, self._reference_speed(index, ctx), 0.0])
+            speed = self._reference_speed(index, float(ctx.x[scale_states].sum()))
+            v_b = self.c_b_m.T @ np.array([0.0, speed, 0.0])
         z = c_n_m @ ctx.velocity - measured
         h = np.zeros((3, ctx.layout.dim))
         h[:, ctx.layout.slice(VELOCITY)] = c_n_m
         h[:, ctx.layout.slice(ATTITUDE)] = -c_n_m @ skew(ctx.velocity)
         h[:, ctx.layout.slice(f"{self.name}.mounting_angles")] = -self.c_b_m @ skew(v_b)
         if self.use_speed:
-            h[1, self._scale_states(ctx)] = -(self.c_b_m @ v_b)[1]
+            h[1, scale_states] = -(self.c_b_m @ v_b)[1]
         return Measurement(z[self.rows], h[self.rows], np.diag(self.variance))
 
-    def _reference_speed(self, index: int, ctx: MeasurementContext) -> float:
+    def _reference_speed(self, index: int, scale: float) -> float:
         """Vehicle speed at which the parameter columns are evaluated: the previous odometer
-        sample corrected by the current scale estimate, zero within 3σ of standstill.
+        sample corrected by the current scale estimate ``scale`` (δk_D, plus s with slip
+        detection), zero within 3σ of standstill.
 
         Not the SINS velocity and not this sample's reading: both carry errors that also enter
         this epoch's z, and a column correlated with its own residual makes every update push
@@ -209,7 +212,6 @@ class Odometer(Plugin):
         previous = max(index - 1, 0)
         if self.still[previous]:
             return 0.0
-        scale = float(ctx.x[self._scale_states(ctx)].sum())
         return float(self.speed[previous] / (1.0 + scale))
 
     def _scale_states(self, ctx: MeasurementContext) -> list[int]:
