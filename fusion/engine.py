@@ -246,6 +246,7 @@ class Engine:
             [[b.name for b in own] for own in self.plugin_blocks],
             [b.local_name for b in enabled],
             opts.federated,
+            opts.jump_detection.min_updates,
         )
 
     def initial_state(self) -> NavState:
@@ -443,6 +444,7 @@ class Engine:
             frame=self.frame,
             gyro_bias=sins.gyro_bias.copy(),
             accel_bias=sins.accel_bias.copy(),
+            travel=sins.travel.copy(),
         )
 
     def _update(

@@ -28,7 +28,11 @@ outlier among n ≥ 10 cannot trip it; a plugin whose measurement size changes (
 varying set of anchors) restarts its window at each change.
 
 A healthy local that fails the test is *isolated* (excluded from fusion and from resets; it keeps
-filtering on its own). An isolated local is *re-admitted* once it has passed the test without
+filtering on its own). A local that owns a state that may jump (:mod:`fusion.jumps`: a slip) is
+isolated only once it has failed on ``confirm_updates`` consecutive updates: a jump the detector
+takes in within that time explains the failure (the windows are then forgotten) and the local
+stays in the fusion, aiding with the jump estimated, rather than leaving the SINS to coast.
+An isolated local is *re-admitted* once it has passed the test without
 interruption for ``hold_s`` seconds. Every transition is a :class:`FaultEvent` (written to
 ``faults.csv``).
 """
@@ -91,12 +95,19 @@ class FaultMonitor:
         Name of the local filter (for the events).
     options
         Window, probability, hold time, use of indicators.
+    confirm_updates
+        Consecutive failing updates before an isolation (0: at the first; a local whose
+        failure a jump may explain waits for the jump detector's decision).
     """
 
-    def __init__(self, local: str, options: FaultDetectionOptions) -> None:
+    def __init__(
+        self, local: str, options: FaultDetectionOptions, confirm_updates: int = 0
+    ) -> None:
         self.local = local
         self.options = options
+        self.confirm_updates = confirm_updates
         self.isolated = False
+        self._failing = 0
         self._window: deque[tuple[float, float, int]] = deque()
         self._nis_sum = 0.0
         self._dof_sum = 0
@@ -131,7 +142,8 @@ class FaultMonitor:
         biased = mean_statistic > mean_threshold
         if statistic > threshold or flagged or biased:
             self._clean_since = None
-            if not self.isolated:
+            self._failing += 1
+            if not self.isolated and self._failing > self.confirm_updates:
                 self.isolated = True
                 if flagged:
                     reason = "plugin indicator"
@@ -142,6 +154,7 @@ class FaultMonitor:
                     reason = f"window mean of {source}"
                 return FaultEvent(t, self.local, statistic, threshold, ISOLATE, reason)
             return None
+        self._failing = 0
         if self._clean_since is None:
             self._clean_since = t
         if self.isolated and t - self._clean_since >= opts.hold_s:
@@ -156,6 +169,7 @@ class FaultMonitor:
         self._nis_sum = 0.0
         self._dof_sum = 0
         self._means.clear()
+        self._failing = 0
 
     def _mean_test(
         self, t: float, source: str, whitened: NDArray[np.float64] | None

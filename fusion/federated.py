@@ -203,6 +203,9 @@ class FederatedFilter:
         The local-filter name of each plugin (plugins with equal names share a local).
     options
         Mode, sharing rule, master share, fusion period and fault detection.
+    confirm_updates
+        Failing updates a local owning a state that may jump waits before its isolation
+        (:class:`~fusion.fault_detection.FaultMonitor`; the jump detector's ``min_updates``).
     """
 
     def __init__(
@@ -211,6 +214,7 @@ class FederatedFilter:
         plugin_blocks: Sequence[Sequence[str]],
         plugin_locals: Sequence[str],
         options: FederatedOptions,
+        confirm_updates: int = 0,
     ) -> None:
         if not plugin_locals:
             raise ValueError("a federated filter needs at least one aiding plugin")
@@ -238,7 +242,11 @@ class FederatedFilter:
                     local_layout,
                     KalmanFilter(np.zeros(index.size), p),
                     share,
-                    FaultMonitor(name, options.fault_detection),
+                    FaultMonitor(
+                        name,
+                        options.fault_detection,
+                        confirm_updates if any(by_name[b].may_jump for b in blocks) else 0,
+                    ),
                 )
             )
         self._local_of_plugin = [names.index(n) for n in plugin_locals]

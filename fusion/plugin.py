@@ -93,6 +93,11 @@ class MeasurementContext:
         m/s²): a plugin reading raw IMU samples (zero angular rate) subtracts them.
     frame
         The recording's ENU frame.
+    travel
+        ``∫ v^n dt`` of the nominal velocity since the start (ENU metres; position feedback
+        does not enter it): its difference between two epochs over their spacing is the mean
+        nominal velocity in between, what an interval-mean sensor (an odometer's counts per
+        sample) is to be compared with.
     """
 
     t: float
@@ -107,6 +112,7 @@ class MeasurementContext:
     frame: LocalFrame
     gyro_bias: NDArray[np.float64] = field(default_factory=lambda: np.zeros(3))
     accel_bias: NDArray[np.float64] = field(default_factory=lambda: np.zeros(3))
+    travel: NDArray[np.float64] = field(default_factory=lambda: np.zeros(3))
 
     @cached_property
     def position_enu(self) -> NDArray[np.float64]:

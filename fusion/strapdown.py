@@ -134,11 +134,13 @@ def _advance(
     accel_bias: NDArray[np.float64],
     coning_sculling: bool,
     dv_sf_sum: NDArray[np.float64],
+    travel: NDArray[np.float64],
 ) -> tuple[int, float]:
     """Consume IMU samples from index ``k`` (the sample covering ``t_now``) up to ``t_target``.
 
     Returns the new sample index and time. ``dv_sf_sum`` accumulates the specific-force
-    velocity increments in n, from which the caller takes the mean f^n of a covariance step.
+    velocity increments in n, from which the caller takes the mean f^n of a covariance step;
+    ``travel`` accumulates the trapezoidal integral of the velocity ``∫ v^n dt`` (m).
     A sample end within 1 ns of ``t_target`` counts as reached, so that no sliver is left.
     """
     n = imu_t.shape[0]
@@ -149,7 +151,9 @@ def _advance(
         dt = t_end - t_now
         w = gyro[k] - gyro_bias
         f = accel[k] - accel_bias
+        v0 = nav[VEL : VEL + 3].copy()
         dv_sf_sum += _step(nav, hist, w * dt, f * dt, dt, coning_sculling)
+        travel += 0.5 * dt * (v0 + nav[VEL : VEL + 3])
         t_now = t_end
         if t_end >= imu_t[k] - 1e-9:
             t_now = imu_t[k]
@@ -258,6 +262,7 @@ class Strapdown:
             self.hist[3:6] = self.accel[0] * dt0
             self.hist[6] = dt0
         self._dv_sf_sum = np.zeros(3)
+        self.travel = np.zeros(3)
 
     @property
     def t_end(self) -> float:
@@ -279,6 +284,7 @@ class Strapdown:
             self.accel_bias,
             self.coning_sculling,
             self._dv_sf_sum,
+            self.travel,
         )
 
     def take_velocity_increment(self) -> NDArray[np.float64]:

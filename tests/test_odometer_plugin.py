@@ -1,16 +1,21 @@
-"""Odometer + motion constraint: H against numerical differentiation of the nonlinear model."""
+"""Odometer + motion constraint: H against numerical differentiation of the nonlinear model,
+ZARU at encoder standstills, the scale error under cutting vibration."""
 
 from __future__ import annotations
 
 from dataclasses import replace
+from pathlib import Path
 
 import numpy as np
 import pytest
 
 from fusion.attitude import dcm_from_euler, dcm_from_quat, quat_from_rotvec
-from fusion.config import parse_config
+from fusion.config import load_config, parse_config
 from fusion.engine import Engine
-from fusion.recording import OdometerData, OdometerMeta, Recording
+from fusion.metrics import compute_metrics
+from fusion.recording import OdometerData, OdometerMeta, Recording, read_recording
+from fusion.sim.scenario import load_scenario
+from fusion.sim.simulate import simulate
 from plugins.odometer import Odometer, OdometerOptions
 from tests.plugin_support import (
     SEED002_SPEC,
@@ -21,13 +26,16 @@ from tests.plugin_support import (
     still_imu,
 )
 
+CONFIGS = Path(__file__).resolve().parents[1] / "configs"
+
 
 def _recording(speed: float) -> Recording:
+    """Two readings of the same speed: the second is measured, the first sets its columns."""
     return Recording(
         path=None,
         meta=recording_meta(odometer={"rate_hz": 10.0}),
         imu=still_imu(),
-        odometer=OdometerData(t=np.array([0.5]), speed=np.array([speed])),
+        odometer=OdometerData(t=np.array([0.4, 0.5]), speed=np.array([speed, speed])),
     )
 
 
@@ -59,7 +67,7 @@ def test_h_matches_numerical_differentiation() -> None:
         x_estimate[18] = scale_true
         # The SINS state carries the errors δv and φ: C̃_b^n = (I − φ×) C_b^n.
         ctx = perturbed_context(layout, dx, velocity=v_n_true, c_b_n=c_b_n_true, x=x_estimate)
-        m = plugin.measure(0, ctx)
+        m = plugin.measure(1, ctx)
         return m.z, m.H
 
     _, h = measure(np.zeros(19))
@@ -115,3 +123,23 @@ def test_zero_angular_rate_at_odometer_standstill() -> None:
     assert abs(np.degrees(result.solution.attitude[-1, 2])) < 0.1
     with pytest.raises(ValueError, match="zero_angular_rate needs mode: odometer"):
         OdometerOptions(mode="motion_constraint", zero_angular_rate=True)
+
+
+def test_scale_error_holds_under_cutting_vibration(tmp_path: Path) -> None:
+    """The reading is the mean speed over its interval, and ±1 cm/s of 5–30 Hz cutting vibration
+    is in the SINS velocity at any instant: compared at the epoch, with the columns taken from
+    the previous reading, δk_D walked to −0.57 (σ 0.016) in this run and the odometer-only
+    position to 28 m RMS. With the interval mean, δk_D is within 3σ of the simulated 1.5 % and
+    the horizontal error within the filter's own σ."""
+    simulate("longwall-200m", tmp_path / "rec", seed=0, overrides=["duration_s=700"])
+    rec = read_recording(tmp_path / "rec")
+    result = Engine(load_config(CONFIGS / "sins_od_ckf.yaml"), rec).run()
+    estimate, sigma = result.state_estimate("odometer.scale_error")
+    odometer = load_scenario("longwall-200m").odometer
+    assert odometer is not None
+    truth = odometer.scale_factor_error
+    print(f"scale error {estimate[0]:+.4f} ± {sigma[0]:.4f} (truth {truth})")
+    assert abs(estimate[0] - truth) < 3 * sigma[0]
+    assert rec.truth is not None
+    nees = compute_metrics(result.solution, rec.truth)["nees"]["normalized_rms"]
+    assert max(nees["e"], nees["n"]) < 1.5
