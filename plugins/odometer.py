@@ -242,9 +242,10 @@ class Odometer(Plugin):
         return mean
 
     def _reference_speed(self, index: int, scale: float) -> float:
-        """Vehicle speed at which the parameter columns are evaluated: the previous odometer
-        sample corrected by the current scale estimate ``scale`` (δk_D, plus s with slip
-        detection), zero within 3σ of standstill.
+        """Vehicle speed at which the parameter columns are evaluated: the mean of the readings
+        in the ``reference_window_s`` before this one, corrected by the current scale estimate
+        ``scale`` (δk_D, plus s with slip detection); zero when the previous reading is within
+        3σ of standstill.
 
         Not the SINS velocity and not this sample's reading: both carry errors that also enter
         this epoch's z, and a column correlated with its own residual makes every update push
