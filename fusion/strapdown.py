@@ -151,9 +151,9 @@ def _advance(
         dt = t_end - t_now
         w = gyro[k] - gyro_bias
         f = accel[k] - accel_bias
-        v0 = nav[VEL : VEL + 3].copy()
+        travel += 0.5 * dt * nav[VEL : VEL + 3]  # trapezoid: half the start velocity …
         dv_sf_sum += _step(nav, hist, w * dt, f * dt, dt, coning_sculling)
-        travel += 0.5 * dt * (v0 + nav[VEL : VEL + 3])
+        travel += 0.5 * dt * nav[VEL : VEL + 3]  # … and half the end velocity
         t_now = t_end
         if t_end >= imu_t[k] - 1e-9:
             t_now = imu_t[k]

@@ -234,7 +234,7 @@ class Odometer(Plugin):
     def _mean_velocity(self, index: int, ctx: MeasurementContext) -> NDArray[np.float64]:
         """Mean nominal velocity over the reading's interval, from the travel at the previous
         reading; the velocity at the epoch when that reading was not measured."""
-        previous, self._travel = self._travel, (index, ctx.travel.copy())
+        previous, self._travel = self._travel, (index, ctx.travel)
         if not self.use_speed or previous is None or previous[0] != index - 1:
             return ctx.velocity
         t = self.recording.odometer.t  # type: ignore[union-attr]

@@ -9,26 +9,18 @@ from __future__ import annotations
 
 from pathlib import Path
 
-import numpy as np
 import pytest
 
 from fusion.config import FusionConfig, load_config, parse_config
-from fusion.engine import Engine, RunResult
+from fusion.engine import Engine
 from fusion.fault_detection import ISOLATE, READMIT
 from fusion.jumps import JUMP
-from fusion.metrics import interpolate_truth
 from fusion.recording import Recording, read_recording
 from fusion.sim.simulate import simulate
+from tests.fault_support import clean_and_faulty, max_horizontal
 
 CONFIGS = Path(__file__).resolve().parents[1] / "configs"
 SHORT = ["static_start_s=30", "duration_s=125"]
-
-
-def _max_horizontal(result: RunResult, rec: Recording) -> float:
-    assert rec.truth is not None
-    inside, position, *_ = interpolate_truth(rec.truth, result.solution.t)
-    err = result.solution.position[inside] - position
-    return float(np.max(np.hypot(err[:, 0], err[:, 1])))
 
 
 def _plain_ckf() -> FusionConfig:
@@ -67,9 +59,9 @@ def test_magnetic_interference_isolated_readmitted_and_bounded(
     window = afkf.filter.federated.fault_detection.window_s
     assert t_end + hold <= events[1][2] <= t_end + hold + window + 5.0
 
-    clean = _max_horizontal(Engine(afkf, recordings["seed003-brokenline"]).run(), disturbed)
-    afkf_max = _max_horizontal(result, disturbed)
-    ckf_max = _max_horizontal(Engine(_plain_ckf(), disturbed).run(), disturbed)
+    clean = max_horizontal(Engine(afkf, recordings["seed003-brokenline"]).run(), disturbed)
+    afkf_max = max_horizontal(result, disturbed)
+    ckf_max = max_horizontal(Engine(_plain_ckf(), disturbed).run(), disturbed)
     print(f"max horizontal: AFKF {afkf_max:.2f} m (clean {clean:.2f}), plain CKF {ckf_max:.2f} m")
     assert afkf_max <= 1.3 * clean
     assert afkf_max <= 0.5 * ckf_max
@@ -100,8 +92,8 @@ def test_odometer_slip_taken_in_as_a_jump(recordings: dict[str, Recording], tmp_
         "AFKF isolating": Engine(parse_config(isolating), slipping).run(),
         "CKF": Engine(load_config(CONFIGS / "sins_od_mag_ckf.yaml"), slipping).run(),
     }
-    worst = {name: _max_horizontal(run, slipping) for name, run in runs.items()}
-    clean = _max_horizontal(Engine(afkf, recordings["seed003-brokenline"]).run(), slipping)
+    worst = {name: max_horizontal(run, slipping) for name, run in runs.items()}
+    clean = max_horizontal(Engine(afkf, recordings["seed003-brokenline"]).run(), slipping)
     print(f"max horizontal under slip: {worst} (clean AFKF {clean:.2f} m)")
     assert [(e.local, e.action) for e in runs["AFKF isolating"].faults] == [
         ("kinematic", ISOLATE),
@@ -115,11 +107,8 @@ def test_uwb_nlos_isolated_readmitted_and_bounded(tmp_path: Path) -> None:
     full_afkf isolates the UWB local at the onset, has it back after the burst, and its maximum
     horizontal error stays within 1.3× that of the same run without NLOS (0.060 m against
     0.064 m: the per-range gate and the isolation keep the biased ranges out)."""
-    overrides = ["static_start_s=30", "duration_s=400"]
     nlos = "faults=[{kind: uwb_nlos, t_start: 200, t_end: 230, bias_m: [0.3, 1.5]}]"
-    simulate("longwall-200m", tmp_path / "clean", seed=4, overrides=overrides)
-    simulate("longwall-200m", tmp_path / "nlos", seed=4, overrides=[*overrides, nlos])
-    clean, disturbed = read_recording(tmp_path / "clean"), read_recording(tmp_path / "nlos")
+    clean, disturbed = clean_and_faulty(tmp_path, nlos)
     config = load_config(CONFIGS / "full_afkf.yaml")
     result = Engine(config, disturbed).run()
     events = [(e.local, e.action, e.t) for e in result.faults]
@@ -127,7 +116,7 @@ def test_uwb_nlos_isolated_readmitted_and_bounded(tmp_path: Path) -> None:
     assert {loc for loc, _, _ in events} == {"uwb"}
     assert events[0][1] == ISOLATE and 200.0 <= events[0][2] <= 201.0
     assert events[-1][1] == READMIT and events[-1][2] >= 230.0
-    nominal = _max_horizontal(Engine(config, clean).run(), clean)
-    worst = _max_horizontal(result, disturbed)
+    nominal = max_horizontal(Engine(config, clean).run(), clean)
+    worst = max_horizontal(result, disturbed)
     print(f"max horizontal: {worst:.3f} m with NLOS, {nominal:.3f} m without")
     assert worst <= 1.3 * nominal

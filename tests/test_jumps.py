@@ -9,13 +9,11 @@ import numpy as np
 import pytest
 
 from fusion.config import JumpDetectionOptions, load_config
-from fusion.engine import Engine, RunResult
+from fusion.engine import Engine
 from fusion.error_model import StateBlock, StateLayout
 from fusion.filter_bank import CentralizedFilter
 from fusion.jumps import JUMP, JumpDetector, jump_states
-from fusion.metrics import interpolate_truth
-from fusion.recording import Recording, read_recording
-from fusion.sim.simulate import simulate
+from tests.fault_support import clean_and_faulty, max_horizontal
 
 CONFIGS = Path(__file__).resolve().parents[1] / "configs"
 
@@ -128,25 +126,15 @@ def test_no_jump_without_a_slip() -> None:
 
 
 # A slipping wheel 25 m from the gate. Without slip detection full_afkf's error reaches 0.27 m
-# (4.3× the run without the slip) and it isolates the UWB local instead of the odometer.
-MID_FACE = ["static_start_s=30", "duration_s=400"]
+# (4.2× the run without the slip) and it isolates the UWB local instead of the odometer.
 SLIP = "faults=[{kind: odometer_slip, t_start: 340, t_end: 355, slip_ratio: 0.3}]"
-
-
-def _max_horizontal(result: RunResult, rec: Recording) -> float:
-    assert rec.truth is not None
-    inside, position, *_ = interpolate_truth(rec.truth, result.solution.t)
-    err = result.solution.position[inside] - position
-    return float(np.max(np.hypot(err[:, 0], err[:, 1])))
 
 
 def test_full_afkf_takes_in_a_slip(tmp_path: Path) -> None:
     """longwall-200m, a 30 % slip for 15 s, 25 m from the gate (UWB in reach): full_afkf reports the
     jump within two seconds of the onset and the jump back after the end, isolates nothing, and its
     maximum horizontal error stays within 1.3× that of the same run without the slip."""
-    simulate("longwall-200m", tmp_path / "clean", seed=4, overrides=MID_FACE)
-    simulate("longwall-200m", tmp_path / "slip", seed=4, overrides=[*MID_FACE, SLIP])
-    clean, slipping = read_recording(tmp_path / "clean"), read_recording(tmp_path / "slip")
+    clean, slipping = clean_and_faulty(tmp_path, SLIP)
     config = load_config(CONFIGS / "full_afkf.yaml")
     result = Engine(config, slipping).run()
     events = [(e.action, e.t, e.reason) for e in result.faults]
@@ -154,7 +142,7 @@ def test_full_afkf_takes_in_a_slip(tmp_path: Path) -> None:
     window = config.filter.jump_detection.window_s
     assert 340.0 <= events[0][1] <= 342.0
     assert 355.0 <= events[1][1] <= 355.0 + window and "back to rest" in events[1][2]
-    nominal = _max_horizontal(Engine(config, clean).run(), clean)
-    slipped = _max_horizontal(result, slipping)
+    nominal = max_horizontal(Engine(config, clean).run(), clean)
+    slipped = max_horizontal(result, slipping)
     print(f"max horizontal: {slipped:.3f} m with the slip, {nominal:.3f} m without")
     assert slipped <= 1.3 * nominal
