@@ -31,8 +31,10 @@ vibration). When the previous reading was not measured (rate cap) the epoch's ve
 
 (columns δv, φ, δp, ε, ∇, then this plugin's δα (3) and δk_D). Mode ``motion_constraint``
 keeps only the x and z rows and needs no odometer (seed 002 eq. 17); it runs at the rate given
-in the options on the IMU clock and owns only δα. The odometer lever arm is neglected (the
-shearer turns at < 0.1°/s, so ω × l is below 1 mm/s for a lever arm of a metre).
+in the options on the IMU clock and owns only δα. Its mounting columns take the SINS velocity,
+or zero while the speed is within 3σ of the velocity's uncertainty (nothing observes the speed
+along the track at a standstill; see ``_constrained_velocity``). The odometer lever arm is
+neglected (the shearer turns at < 0.1°/s, so ω × l is below 1 mm/s for a lever arm of a metre).
 δα_y does not enter any row (a rotation about the travel direction leaves v^m unchanged), so its
 σ stays at its prior — the seed's observability analysis (§3.3).
 
@@ -58,6 +60,7 @@ observes the vertical gyro bias before the heading has drifted on a slow, straig
 
 from __future__ import annotations
 
+import math
 from typing import Literal
 
 import numpy as np
@@ -216,12 +219,13 @@ class Odometer(Plugin):
         c_n_m = self.c_b_m @ c_n_b
         measured = np.zeros(3)
         velocity = self._mean_velocity(index, ctx)
-        v_b = c_n_b @ velocity
         if self.use_speed:
             scale_states = self._scale_states(ctx)
             measured[1] = self.speed[index]
             speed = self._reference_speed(index, float(ctx.x[scale_states].sum()))
             v_b = self.c_b_m.T @ np.array([0.0, speed, 0.0])
+        else:
+            v_b = self._constrained_velocity(c_n_b @ velocity, ctx)
         z = c_n_m @ velocity - measured
         h = np.zeros((3, ctx.layout.dim))
         h[:, ctx.layout.slice(VELOCITY)] = c_n_m
@@ -230,6 +234,26 @@ class Odometer(Plugin):
         if self.use_speed:
             h[1, scale_states] = -(self.c_b_m @ v_b)[1]
         return Measurement(z[self.rows], h[self.rows], np.diag(self.variance))
+
+    @staticmethod
+    def _constrained_velocity(
+        v_b: NDArray[np.float64], ctx: MeasurementContext
+    ) -> NDArray[np.float64]:
+        """Body velocity at which the mounting columns are evaluated without an odometer: the
+        SINS velocity, or zero while its speed is within 3σ of the velocity's own uncertainty.
+
+        The columns ``−C_b^m (v^b×)`` are a derivative taken at the SINS velocity; with the
+        constraint alone nothing observes the speed along the track, so during a standstill its
+        σ grows with the accelerometer bias (0.7 m/s after 60 s on ``seed002-rectangle``). When
+        the machine then moves, columns built from a velocity that is mostly error turned the
+        lateral residual into a 65° mounting yaw and the filter diverged (NaN attitude; 1.8 km
+        horizontal RMS in 180 s on another seed).
+        """
+        rows = ctx.layout.slice(VELOCITY)
+        sigma = math.sqrt(float(np.trace(ctx.covariance[rows, rows])))
+        if float(np.linalg.norm(v_b)) < 3.0 * sigma:
+            return np.zeros(3)
+        return v_b
 
     def _mean_velocity(self, index: int, ctx: MeasurementContext) -> NDArray[np.float64]:
         """Mean nominal velocity over the reading's interval, from the travel at the previous

@@ -112,12 +112,20 @@ def test_motion_constraint_while_moving() -> None:
     assert moving.size > 0 and plugin.zupt_epoch[:90].all()
     layout = layout_with(plugin.state_blocks())
     velocity = np.array([0.3, 0.1, 0.02])
+    known = 1e-4 * layout.initial_covariance()  # a velocity σ well below the speed
     m = plugin.measure(
-        int(moving[0]), perturbed_context(layout, np.zeros(layout.dim), velocity=velocity)
+        int(moving[0]),
+        perturbed_context(layout, np.zeros(layout.dim), velocity=velocity, covariance=known),
     )
     assert m is not None and m.z.shape == (2,)
     np.testing.assert_allclose(m.z, velocity[[0, 2]], atol=1e-12)  # C_b^n = I, no mounting
     assert np.any(m.H[:, layout.slice("zupt.mounting_angles")] != 0.0)
+    unknown = 100.0 * layout.initial_covariance()  # the speed is within 3σ of its uncertainty
+    m = plugin.measure(
+        int(moving[0]),
+        perturbed_context(layout, np.zeros(layout.dim), velocity=velocity, covariance=unknown),
+    )
+    assert m is not None and np.all(m.H[:, layout.slice("zupt.mounting_angles")] == 0.0)
     alone = Zupt("zupt", Zupt.Options(), rec)
     assert alone.measure(int(moving[0]), perturbed_context(layout_with(()), np.zeros(15))) is None
 
