@@ -247,6 +247,7 @@ class Engine:
             [b.local_name for b in enabled],
             opts.federated,
             opts.jump_detection.min_updates,
+            [b.instance_name for b in enabled],
         )
 
     def initial_state(self) -> NavState:

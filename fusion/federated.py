@@ -206,6 +206,8 @@ class FederatedFilter:
     confirm_updates
         Failing updates a local owning a state that may jump waits before its isolation
         (:class:`~fusion.fault_detection.FaultMonitor`; the jump detector's ``min_updates``).
+    plugin_names
+        Each plugin's name, for the fault report (default: its index).
     """
 
     def __init__(
@@ -215,6 +217,7 @@ class FederatedFilter:
         plugin_locals: Sequence[str],
         options: FederatedOptions,
         confirm_updates: int = 0,
+        plugin_names: Sequence[str] | None = None,
     ) -> None:
         if not plugin_locals:
             raise ValueError("a federated filter needs at least one aiding plugin")
@@ -250,6 +253,7 @@ class FederatedFilter:
                 )
             )
         self._local_of_plugin = [names.index(n) for n in plugin_locals]
+        self._plugin_names = list(plugin_names or map(str, range(len(plugin_locals))))
         self.master = (
             KalmanFilter(np.zeros(N_COMMON), p0[COMMON, COMMON] / options.master_share)
             if options.master_share > 0
@@ -288,7 +292,8 @@ class FederatedFilter:
         """Feed the local's fault monitor; note isolation and re-admission events."""
         self._fused = None  # the local has just been updated
         f = self.locals[self._local_of_plugin[plugin]]
-        event = f.monitor.observe(t, result.nis, result.dof, suspect, str(plugin), result.whitened)
+        source = self._plugin_names[plugin]
+        event = f.monitor.observe(t, result.nis, result.dof, suspect, source, result.whitened)
         if event is not None:
             self.faults.append(event)
             f.reinitialize = event.action == READMIT
