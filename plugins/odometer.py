@@ -247,7 +247,7 @@ class Odometer(Plugin):
         σ grows with the accelerometer bias (0.7 m/s after 60 s on ``seed002-rectangle``). When
         the machine then moves, columns built from a velocity that is mostly error turned the
         lateral residual into a 65° mounting yaw and the filter diverged (NaN attitude; 1.8 km
-        horizontal RMS in 180 s on another seed).
+        horizontal RMS in 240 s on another seed).
         """
         rows = ctx.layout.slice(VELOCITY)
         sigma = math.sqrt(float(np.trace(ctx.covariance[rows, rows])))
@@ -258,8 +258,10 @@ class Odometer(Plugin):
     def _mean_velocity(self, index: int, ctx: MeasurementContext) -> NDArray[np.float64]:
         """Mean nominal velocity over the reading's interval, from the travel at the previous
         reading; the velocity at the epoch when that reading was not measured."""
+        if not self.use_speed:
+            return ctx.velocity
         previous, self._travel = self._travel, (index, ctx.travel)
-        if not self.use_speed or previous is None or previous[0] != index - 1:
+        if previous is None or previous[0] != index - 1:
             return ctx.velocity
         t = self.recording.odometer.t  # type: ignore[union-attr]
         mean: NDArray[np.float64] = (ctx.travel - previous[1]) / (t[index] - t[index - 1])
