@@ -6,7 +6,9 @@ time (splitting the IMU interval that contains it, KF-GINS style), the covarianc
 over the interval since the previous event with F evaluated at the current nominal state and the
 mean specific force of the interval, the due plugins are asked for ``(z, H, R)``, and after the
 updates the common error estimate is fed back into the SINS and reset (closed loop). The
-navigation state therefore runs at the IMU rate and the covariance at the configured step.
+navigation state therefore runs at the IMU rate and the covariance at the configured step. A
+bridged IMU gap adds its own process noise at the first step that reaches into it
+(:mod:`fusion.imu_gaps`).
 
 The error-state estimates live in a filter bank (:mod:`fusion.filter_bank`): one centralized
 Kalman filter, or the federated master of :mod:`fusion.federated` whose local filters are index
@@ -18,7 +20,7 @@ from __future__ import annotations
 import time
 from array import array
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 from numpy.typing import NDArray
@@ -28,6 +30,8 @@ from fusion.config import ConfigError, FusionConfig, ImuTuning
 from fusion.dead_reckoning import dead_reckon
 from fusion.earth import LocalFrame
 from fusion.error_model import (
+    ACCEL_BIAS,
+    GYRO_BIAS,
     ErrorModel,
     ImuNoise,
     StateLayout,
@@ -36,6 +40,7 @@ from fusion.error_model import (
 from fusion.fault_detection import FaultEvent
 from fusion.federated import FederatedFilter
 from fusion.filter_bank import CentralizedFilter, FilterBank
+from fusion.imu_gaps import GapBridge, bridge_imu_gaps
 from fusion.jumps import JumpDetector, jump_states
 from fusion.kalman import KalmanFilter, UpdateResult
 from fusion.plugin import MeasurementContext, Plugin, create_plugin
@@ -207,7 +212,8 @@ class Engine:
 
     def __init__(self, config: FusionConfig, recording: Recording) -> None:
         self.config = config
-        self.recording = recording
+        bridged, self.gap_bridges = bridge_imu_gaps(recording.imu, recording.imu_gaps)
+        self.recording = replace(recording, imu=bridged) if self.gap_bridges else recording
         meta = recording.meta
         self.frame = LocalFrame(meta.origin.lat_deg, meta.origin.lon_deg, meta.origin.height_m)
         self.plugins: list[Plugin] = [
@@ -295,6 +301,8 @@ class Engine:
             eye = np.eye(bank.smoothing_dim)
             smoother.step(t0, eye, state, state, np.zeros(bank.smoothing_dim), sins.nav)
         t_cov = t0
+        gaps = iter(self.gap_bridges)
+        next_gap = next(gaps, None)
         n_events = len(times)
         report_every = max(n_events // 100, 1)
         i = 0
@@ -309,6 +317,9 @@ class Engine:
             if dt > 1e-9:
                 f_n = sins.take_velocity_increment() / dt
                 phi, qd = self.model.discrete(sins.nav, f_n, sins.c_b_n, dt)
+                while next_gap is not None and te > next_gap.t_start:
+                    qd = qd + self._gap_noise(next_gap, sins, f_n)
+                    next_gap = next(gaps, None)
                 bank.predict(phi, qd)
                 t_cov = te
                 if jumps is not None:
@@ -359,6 +370,13 @@ class Engine:
             smoothed=smoothed,
             smoother_peak_steps=smoother.peak_steps if smoother is not None else 0,
         )
+
+    def _gap_noise(
+        self, gap: GapBridge, sins: Strapdown, f_n: NDArray[np.float64]
+    ) -> NDArray[np.float64]:
+        """Process noise of a bridged IMU gap (fusion/imu_gaps.py)."""
+        f, _ = self.model.continuous(sins.nav, f_n, sins.c_b_n)
+        return gap.noise(f, self.layout.slice(GYRO_BIAS), self.layout.slice(ACCEL_BIAS))
 
     def _smoother(self, bank: FilterBank) -> WindowedSmoother | None:
         """The configured smoother, its windows closing at the plugins' window ends (online)."""
