@@ -486,9 +486,9 @@ class Engine:
         res = kf.update(m.z, m.H, m.R, self.gates[src], shared)
         bank.record(src, t, res, m.suspect)
         if jumps is not None and signature is not None:
-            event = jumps.observe(t, bank, src, signature, res)
-            if event is not None:
-                bank.faults.append(event)
+            events = [jumps.observe(t, bank, src, signature, res)]
+            events += [jumps.rest(t, bank, name) for name in m.at_rest]
+            bank.faults.extend(e for e in events if e is not None)
         logs[plugin.name].append(t, res, m.suspect)
         return res.accepted
 

@@ -339,6 +339,15 @@ class FederatedFilter:
                 f.kf.condition(int(where[0]), value)
         self._fused = None
 
+    def restart(self, index: int, value: float, variance: float) -> None:
+        """Restart plugin state ``index`` in the local that holds it (a plugin state is
+        uncorrelated with the common states afterwards, so the local's share needs no care)."""
+        for f in self.locals:
+            where = np.flatnonzero(f.index == index)
+            if where.size:
+                f.kf.restart(int(where[0]), value, variance)
+        self._fused = None
+
     def _filters(self) -> list[KalmanFilter]:
         return [f.kf for f in self.locals] + ([self.master] if self.master is not None else [])
 

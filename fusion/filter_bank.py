@@ -64,6 +64,10 @@ class FilterBank(Protocol):
         """Set state ``index`` of the full layout to ``value`` by conditioning on it (the
         correlated states follow)."""
 
+    def restart(self, index: int, value: float, variance: float) -> None:
+        """Restart plugin state ``index`` of the full layout at ``value`` with ``variance``,
+        uncorrelated with the rest (the state itself changed; nothing else moves)."""
+
     def fusion_due(self, t: float, updated: bool) -> bool:
         """Whether to compute and feed back a correction now."""
 
@@ -134,6 +138,10 @@ class CentralizedFilter:
     def condition(self, index: int, value: float) -> None:
         """A Kalman update on ``x[index] = value`` with a negligible R."""
         self.kf.condition(index, value)
+
+    def restart(self, index: int, value: float, variance: float) -> None:
+        """Restart a plugin state (:meth:`fusion.kalman.KalmanFilter.restart`)."""
+        self.kf.restart(index, value, variance)
 
     def fusion_due(self, t: float, updated: bool) -> bool:
         """Feed back after every update round."""

@@ -46,6 +46,17 @@ corrected with it. A state may also leave rest in one direction only (``leaves_r
 slip whose onset went undetected (slow, at a crawl) ends in what looks like a jump the other
 way, which must not be taken for a new slip; while the state is at rest, jumps against the
 direction are not taken in.
+
+A plugin may also know that a state is back at rest without any jump to detect: a wheel that
+stands still does not slip, so a slip episode ends at the latest when the machine stops (at a
+standstill s has no effect on any reading and nothing could detect its end). The plugin says so
+in its measurement (:attr:`fusion.plugin.Measurement.at_rest`), and a state away from rest is
+then *restarted* at rest with its prior σ and no correlation (:meth:`JumpDetector.rest`) — not
+conditioned, since the state changed rather than being found to have been at rest all along.
+Without this a slip that ended during a stop stayed in the odometer scale after the restart;
+the detector then had to find the end among the restart's own transients and, on
+``longwall-200m`` seed 1 (full_afkf, +20 % slip), the UWB local was isolated first for
+disagreeing with the mis-scaled odometer.
 """
 
 from __future__ import annotations
@@ -115,6 +126,9 @@ class JumpDetector:
         self._last_opened = -np.inf
         self._at_rest = np.array([s.rest is not None for s in states])
         self._direction = np.array([s.leaves_rest for s in states])
+        prior = np.diag(layout.initial_covariance())
+        self._prior_variance = np.array([prior[s.index] for s in states])
+        self._by_name = {s.name: k for k, s in enumerate(states)}
 
     def step(self, t: float, bank: FilterBank) -> None:
         """Open a hypothesis per state every ``spacing_s``; drop those older than the window."""
@@ -177,6 +191,22 @@ class JumpDetector:
                 reason += f", back to rest {state.rest:g}"
             self._at_rest[k] = back
         return FaultEvent(t, state.name, float(ratio[best]), self.threshold, JUMP, reason)
+
+    def rest(self, t: float, bank: FilterBank, name: str) -> FaultEvent | None:
+        """The plugin reports state ``name`` physically back at rest (a wheel standing still
+        does not slip): if a jump had taken it away, restart it there at its prior σ."""
+        k = self._by_name[name]
+        state = self.states[k]
+        if self._at_rest[k] or state.rest is None:
+            return None
+        x, p = bank.estimate()
+        was, sigma = float(x[state.index]), float(np.sqrt(p[state.index, state.index]))
+        bank.restart(state.index, state.rest, float(self._prior_variance[k]))
+        self._keep(self._state != k, bank)
+        self._at_rest[k] = True
+        statistic = (was - state.rest) ** 2 / sigma**2
+        reason = f"back to rest {state.rest:g} at a standstill (was {was:+.4g} ± {sigma:.2g})"
+        return FaultEvent(t, state.name, statistic, self.threshold, JUMP, reason)
 
     def _keep(self, keep: NDArray[np.bool_], bank: FilterBank) -> None:
         bank.keep_signatures(keep)

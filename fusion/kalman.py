@@ -139,6 +139,17 @@ class KalmanFilter:
         self.x += e * jump
         self.P += variance * np.outer(e, e)
 
+    def restart(self, index: int, value: float, variance: float) -> None:
+        """Restart state ``index`` at ``value`` with ``variance``, uncorrelated with the rest:
+        the state itself changed (it is not a measurement of what it had been), so nothing
+        else moves; its part of the signature columns goes with it."""
+        self.x[index] = value
+        self.P[index, :] = 0.0
+        self.P[:, index] = 0.0
+        self.P[index, index] = variance
+        if self.signatures.shape[1]:
+            self.signatures[index, :] = 0.0
+
     def condition(self, index: int, value: float) -> None:
         """Condition on state ``index`` being exactly ``value``: an update with H = e_indexᵀ and
         R = 10⁻¹² P_jj, so the correlated states follow."""

@@ -54,6 +54,10 @@ class Measurement:
     """The plugin's own fault indicator flags this epoch (e.g. a magnetic field whose norm or
     dip is off the expected earth field). The centralized filter logs it; the federated master
     counts it toward isolating the plugin's local filter."""
+    at_rest: tuple[str, ...] = ()
+    """Names of the plugin's states that are physically back at their rest value at this epoch
+    (a slip ratio while the wheel stands still): a state that had left rest through a jump is
+    restarted there (:meth:`fusion.jumps.JumpDetector.rest`)."""
 
     def stacked_with(self, other: Measurement) -> Measurement:
         """This measurement and ``other`` as one (rows appended, independent noise)."""
@@ -62,6 +66,7 @@ class Measurement:
             np.vstack([self.H, other.H]),
             scipy.linalg.block_diag(self.R, other.R),
             self.suspect or other.suspect,
+            self.at_rest + tuple(n for n in other.at_rest if n not in self.at_rest),
         )
 
 

@@ -45,10 +45,12 @@ jumps, which :mod:`fusion.jumps` detects, estimates and takes in: the velocity a
 slip had pulled are put back, and the odometer keeps aiding with the slipping scale (isolating
 it would leave a MEMS SINS to coast, which drifts further than the slip pulls). The wheel's
 grip returning is the jump back to s = 0 (the state's rest), where s is then set exactly, so a
-slip does not leave its estimation error in δk_D. A slipping wheel turns more than the machine
-travels, so s leaves rest upwards only: the end of a slip whose onset went unnoticed (at a
-crawl the step is within the encoder noise) is not taken for a negative slip. A locked,
-skidding wheel (under-reading) is left to the fault monitor.
+slip does not leave its estimation error in δk_D. A standstill (every reading of the past
+``rest_guard_s`` within 3σ of zero) ends a slip episode for certain: the measurement reports s
+at rest, and a slip still held is restarted at zero (:meth:`fusion.jumps.JumpDetector.rest`).
+A slipping wheel turns more than the machine travels, so s leaves rest upwards only: the end of
+a slip whose onset went unnoticed (at a crawl the step is within the encoder noise) is not taken
+for a negative slip. A locked, skidding wheel (under-reading) is left to the fault monitor.
 
 Zero angular rate at standstill (option ``zero_angular_rate``, mode ``odometer``): while every
 odometer reading of the past ``rest_guard_s`` is within 3σ of zero the machine stands, and the
@@ -61,6 +63,7 @@ observes the vertical gyro bias before the heading has drifted on a slow, straig
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 from typing import Literal
 
 import numpy as np
@@ -103,7 +106,9 @@ class OdometerOptions(PluginOptions):
         description="the scale and mounting columns take the mean odometer speed of this"
         " window before the reading (not the reading itself: see Odometer._reference_speed)",
     )
-    rest_guard_s: float = Field(1.0, ge=0, description="standstill this long before a ZARU")
+    rest_guard_s: float = Field(
+        1.0, ge=0, description="standstill this long before a ZARU or ending a slip"
+    )
     angular_rate_floor_dps: float = Field(
         0.002, ge=0, description="ZARU noise added to the averaged ARW (standstill vibration)"
     )
@@ -147,7 +152,11 @@ class Odometer(Plugin):
             if options.zero_angular_rate
             else None
         )
-        self.at_rest = self._standstill() if self.zero_rate is not None else np.empty(0, bool)
+        self.at_rest = (
+            self._standstill()
+            if self.zero_rate is not None or options.slip_detection
+            else np.empty(0, bool)
+        )
         self._travel: tuple[int, NDArray[np.float64]] | None = None  # at the last reading
 
     def _lagged_mean_speed(self) -> NDArray[np.float64]:
@@ -208,7 +217,11 @@ class Odometer(Plugin):
         """Residual of the SINS velocity in m against the odometer and the constraint, plus
         the zero angular rate at a standstill if configured."""
         velocity = self._velocity(index, ctx)
-        if self.zero_rate is None or not self.at_rest[index]:
+        if not self.at_rest.size or not self.at_rest[index]:
+            return velocity
+        if self.options.slip_detection:
+            velocity = replace(velocity, at_rest=(f"{self.name}.slip",))
+        if self.zero_rate is None:
             return velocity
         t = self.recording.odometer.t  # type: ignore[union-attr]
         return velocity.stacked_with(self.zero_rate.measure(t[index - 1], t[index], ctx))

@@ -97,3 +97,15 @@ def test_covariance_stays_symmetric_positive_definite(n_updates: int) -> None:
     d = np.sqrt(np.diag(kf.P))
     assert np.linalg.eigvalsh(kf.P / np.outer(d, d)).min() > 0
     assert min_eig > 0
+
+
+def test_restart_moves_only_the_restarted_state() -> None:
+    kf = KalmanFilter(
+        np.array([0.3, -0.2, 0.19]), np.array([[1.0, 0.5, 0.2], [0.5, 2.0, 0.1], [0.2, 0.1, 0.3]])
+    )
+    kf.signatures = np.ones((3, 2))
+    kf.restart(2, 0.0, 1e-8)
+    np.testing.assert_array_equal(kf.x, [0.3, -0.2, 0.0])
+    np.testing.assert_array_equal(kf.P[2], [0.0, 0.0, 1e-8])
+    np.testing.assert_array_equal(kf.P[:2, :2], [[1.0, 0.5], [0.5, 2.0]])
+    np.testing.assert_array_equal(kf.signatures[2], [0.0, 0.0])
