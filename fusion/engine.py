@@ -17,6 +17,7 @@ sets of the same layout. Φ and Q_d are always computed once over the full layou
 
 from __future__ import annotations
 
+import logging
 import time
 from array import array
 from collections.abc import Callable
@@ -50,6 +51,7 @@ from fusion.smoother import WindowedSmoother
 from fusion.solution import Solution
 from fusion.strapdown import HGT, LAT, LON, NAV_SIZE, Q0, VEL, NavState, Strapdown
 
+_log = logging.getLogger(__name__)
 ProgressCallback = Callable[[float], None]
 GRID, OUTPUT = -1, -2
 
@@ -385,11 +387,18 @@ class Engine:
             return None
         ends = np.empty(0)
         if opts.mode == "online":
-            ends = np.sort(np.concatenate([np.empty(0)] + [p.window_ends() for p in self.plugins]))
-            if ends.size == 0:
+            reporting = [p for p in self.plugins if type(p).window_ends is not Plugin.window_ends]
+            if not reporting:
                 raise ConfigError(
                     "config key smoother.mode: online smoothing needs a plugin that reports"
                     " window ends (face ends), e.g. cpoem; none of the configured plugins does"
+                )
+            ends = np.sort(np.concatenate([np.empty(0)] + [p.window_ends() for p in reporting]))
+            if ends.size == 0:
+                _log.warning(
+                    "%s: no window end (face end) in this recording; online smoothing closes"
+                    " one window at its end",
+                    self.recording.meta.name,
                 )
         return WindowedSmoother(bank.smoothing_dim, ends, opts.memory_budget_mb)
 

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from dataclasses import replace
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -10,6 +11,8 @@ from filterpy.kalman import KalmanFilter as FilterpyKF
 
 from fusion.kalman import KalmanFilter
 from fusion.smoother import StepStore, rts
+
+CONFIGS = Path(__file__).resolve().parents[1] / "configs"
 
 
 def _system() -> tuple[np.ndarray, ...]:
@@ -117,3 +120,35 @@ def test_engine_smoothing_with_sparse_fixes_is_better_and_consistent() -> None:
     print(f"smoothed/forward horizontal RMS {ratio:.2f}, smoothed RMS(err/σ) {nees_rms:.2f}")
     assert ratio < 0.7
     assert 0.7 < nees_rms < 1.3
+
+
+def test_online_smoothing_without_a_face_end_smooths_the_recording_as_one_window(
+    tmp_path: Path,
+) -> None:
+    """Online smoothing closes its windows at the face ends the CPOEM plugin reports; a slice
+    that never reaches one is smoothed as a single window, not refused."""
+    from fusion.config import load_config
+    from fusion.engine import Engine
+    from fusion.recording import read_recording
+    from fusion.sim.simulate import simulate
+
+    simulate("longwall-200m", tmp_path / "rec", seed=1, overrides=["duration_s=90"])
+    rec = read_recording(tmp_path / "rec")
+    config = load_config(CONFIGS / "sins_od_cpoem_rts.yaml")
+    assert config.smoother.mode == "online"
+    result = Engine(config, rec).run()
+    assert result.smoothed is not None
+    np.testing.assert_array_equal(result.smoothed.t, result.solution.t)
+
+
+def test_online_smoothing_needs_a_plugin_that_reports_window_ends() -> None:
+    from test_engine import make_recording
+
+    from fusion.config import ConfigError, parse_config
+    from fusion.engine import Engine
+
+    config = parse_config(
+        {"name": "online-fixes", "plugins": [{"type": "position"}], "smoother": {"mode": "online"}}
+    )
+    with pytest.raises(ConfigError, match=r"smoother\.mode"):
+        Engine(config, make_recording(0, duration=20.0)).run()
