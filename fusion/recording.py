@@ -49,15 +49,16 @@ from __future__ import annotations
 
 import gzip
 import io
+import itertools
 import logging
 import math
 import re
 import zlib
 from collections import Counter
-from collections.abc import Callable, Iterable, Sequence
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Annotated, Any, Literal, NamedTuple
+from typing import Annotated, Any, BinaryIO, Literal, NamedTuple
 
 import numpy as np
 import numpy.typing as npt
@@ -772,17 +773,42 @@ class _Table:
     text: npt.NDArray[np.str_] | None  # the text column, when there is one
 
 
-def _read_bytes(path: Path, label: str, rep: _Reporter) -> bytes | None:
-    try:
-        data = path.read_bytes()
-        if path.name.endswith(".gz"):
-            data = gzip.decompress(data)
-    except (OSError, EOFError, zlib.error, gzip.BadGzipFile) as exc:
-        rep.add("read", "", f"cannot read {label}: {exc}")
-        return None
-    if data.startswith(b"\xef\xbb\xbf"):
-        data = data[3:]
-    return data
+def _line_blocks(stream: BinaryIO) -> Iterator[bytes]:
+    """The file in blocks of whole lines, about ``_BLOCK_BYTES`` each, read as it streams (an
+    8-hour imu.csv is 280 MB: held whole, it doubled the reader's peak memory).
+
+    A block ends at a line with content (the line end after it is dropped); the empty lines
+    that follow go to the start of the next block, so an empty line inside the file stays a
+    line of its own, while line ends at the very end of the file are dropped. The first block
+    starts with the header line; a UTF-8 byte-order mark is removed.
+    """
+    carry = b""
+    first = True
+    while True:
+        chunk = stream.read(_BLOCK_BYTES)
+        buf = carry + chunk
+        if first and buf.startswith(b"\xef\xbb\xbf"):
+            buf = buf[3:]
+        first = False
+        if not chunk:
+            body = buf.rstrip(b"\r\n")
+            if body:
+                yield body
+            return
+        body = buf[: buf.rfind(b"\n") + 1].rstrip(b"\r\n")
+        if not body:
+            carry = buf
+            continue
+        rest = len(body) + (2 if buf[len(body) : len(body) + 2] == b"\r\n" else 1)
+        carry = buf[rest:]
+        yield body
+
+
+def _open_csv(path: Path) -> BinaryIO:
+    """The file as a binary stream (decompressed on the fly for ``.gz``)."""
+    if path.name.endswith(".gz"):
+        return gzip.open(path, "rb")  # type: ignore[return-value]
+    return path.open("rb")
 
 
 def _check_header(header: str, columns: Sequence[str], rep: _Reporter) -> bool:
@@ -817,36 +843,52 @@ def _read_table(
 ) -> _Table | None:
     """Read one CSV file; None when it is unreadable or its header is wrong.
 
-    The body is parsed in blocks of whole lines with :func:`numpy.loadtxt`; a block that fails
-    (or whose row count shows skipped blank lines) is re-parsed line by line to report each
-    bad line, so one bad cell in a huge file costs one slow block, not a slow file.
+    The file is read as it streams, in blocks of whole lines (:func:`_line_blocks`), each parsed
+    with :func:`numpy.loadtxt`; a block that fails (or whose row count shows skipped blank
+    lines) is re-parsed line by line to report each bad line, so one bad cell in a huge file
+    costs one slow block, not a slow file.
     """
-    data = _read_bytes(path, label, rep)
-    if data is None:
+    try:
+        with _open_csv(path) as stream:
+            parsed = _parse_lines(_line_blocks(stream), columns, rep, text_col)
+    except (OSError, EOFError, zlib.error, gzip.BadGzipFile) as exc:
+        rep.add("read", "", f"cannot read {label}: {exc}")
         return None
-    nl = data.find(b"\n")
-    header_bytes = data if nl < 0 else data[:nl]
-    header = header_bytes.decode("utf-8", errors="replace").rstrip("\r")
-    if not header.strip() and (nl < 0 or not data[nl + 1 :].strip()):
-        rep.add("header", "", f"file is empty; expected the header line '{','.join(columns)}'")
+    if parsed is None:
         return None
+    values, lines, texts = parsed
+    table = _Table(
+        np.concatenate(values),
+        np.concatenate(lines),
+        np.concatenate(texts) if text_col is not None else None,
+    )
+    _drop_nonfinite(table, columns, rep, text_col)
+    return table
+
+
+def _parse_lines(
+    blocks: Iterator[bytes], columns: Sequence[str], rep: _Reporter, text_col: int | None
+) -> tuple[list[FloatArray], list[IntArray], list[npt.NDArray[np.str_]]] | None:
+    """Check the header line and parse the body block by block (see :func:`_read_table`);
+    None when the file is empty or its header is wrong."""
+    k = len(columns)
+    first = next(blocks, b"")
+    nl = first.find(b"\n")
+    header = (first if nl < 0 else first[:nl]).decode("utf-8", errors="replace").rstrip("\r")
+    body = b"" if nl < 0 else first[nl + 1 :]
+    if not header.strip() and not body.strip():
+        following = next(blocks, None)
+        if following is None:
+            rep.add("header", "", f"file is empty; expected the header line '{','.join(columns)}'")
+            return None
+        blocks = itertools.chain([following], blocks)
     if not _check_header(header, columns, rep):
         return None
-    k = len(columns)
-    pos = len(data) if nl < 0 else nl + 1
-    end = len(data)
-    while end > pos and data[end - 1] in b"\r\n":
-        end -= 1
     values: list[FloatArray] = [np.empty((0, k))]
     lines: list[IntArray] = [np.empty(0, dtype=np.int64)]
     texts: list[npt.NDArray[np.str_]] = [np.empty(0, dtype=str)]
     first_line = 2
-    while pos < end:
-        stop = min(end, pos + _BLOCK_BYTES)
-        if stop < end:
-            stop = data.find(b"\n", stop)
-            stop = end if stop < 0 or stop > end else stop
-        block = data[pos:stop]
+    for block in itertools.chain([body] if nl >= 0 else [], blocks):
         n_lines = block.count(b"\n") + 1
         parsed = _parse_block(block, n_lines, k, text_col)
         if parsed is None:
@@ -858,14 +900,7 @@ def _read_table(
         texts.append(parsed[1])
         lines.append(row_lines)
         first_line += n_lines
-        pos = stop + 1
-    table = _Table(
-        np.concatenate(values),
-        np.concatenate(lines),
-        np.concatenate(texts) if text_col is not None else None,
-    )
-    _drop_nonfinite(table, columns, rep, text_col)
-    return table
+    return values, lines, texts
 
 
 def _parse_block(
@@ -1330,7 +1365,11 @@ def _build(
     return Recording(
         path=root,
         meta=meta,
-        imu=ImuData(t=imu[:, 0], gyro=imu[:, 1:4], accel=imu[:, 4:7]),
+        imu=ImuData(  # contiguous copies, so the strapdown loop needs none and the table goes
+            t=np.ascontiguousarray(imu[:, 0]),
+            gyro=np.ascontiguousarray(imu[:, 1:4]),
+            accel=np.ascontiguousarray(imu[:, 4:7]),
+        ),
         odometer=OdometerData(t=odo[:, 0], speed=odo[:, 1]) if odo is not None else None,
         magnetometer=MagnetometerData(t=mag[:, 0], field=mag[:, 1:4]) if mag is not None else None,
         uwb=uwb,

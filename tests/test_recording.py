@@ -405,6 +405,25 @@ def test_empty_line(rec: Path) -> None:
     assert p.where == "line 10" and "empty line" in p.rule
 
 
+@pytest.mark.parametrize("block_bytes", [7, 64, 1 << 23])
+def test_blocks_of_any_size_read_the_same(
+    rec: Path, block_bytes: int, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The reader streams each file in blocks of whole lines: where the blocks fall changes
+    neither the values nor the line an error names (empty lines inside the file, CRLF line
+    ends and trailing line ends at the end of the file included)."""
+    reference = read_recording(rec)
+    path = rec / "imu.csv"
+    path.write_bytes(path.read_bytes().replace(b"\n", b"\r\n") + b"\r\n\n\n")
+    monkeypatch.setattr("fusion.recording._BLOCK_BYTES", block_bytes)
+    again = read_recording(rec)
+    np.testing.assert_array_equal(again.imu.accel, reference.imu.accel)
+    np.testing.assert_array_equal(again.imu.t, reference.imu.t)
+    set_line(path, 10, "")
+    p = only(problems_of(rec))
+    assert p.where == "line 10" and "empty line" in p.rule
+
+
 def test_missing_fields(rec: Path) -> None:
     set_line(rec / "imu.csv", 12, "0.1,0,0")
     p = only(problems_of(rec))
