@@ -387,13 +387,13 @@ class Engine:
             return None
         ends = np.empty(0)
         if opts.mode == "online":
-            reporting = [p for p in self.plugins if type(p).window_ends is not Plugin.window_ends]
-            if not reporting:
+            reported = [e for p in self.plugins if (e := p.window_ends()) is not None]
+            if not reported:
                 raise ConfigError(
                     "config key smoother.mode: online smoothing needs a plugin that reports"
                     " window ends (face ends), e.g. cpoem; none of the configured plugins does"
                 )
-            ends = np.sort(np.concatenate([np.empty(0)] + [p.window_ends() for p in reporting]))
+            ends = np.sort(np.concatenate(reported))
             if ends.size == 0:
                 _log.warning(
                     "%s: no window end (face end) in this recording; online smoothing closes"

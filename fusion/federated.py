@@ -54,7 +54,7 @@ If every local is isolated the fusion uses them all (there is nothing better to 
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -333,20 +333,23 @@ class FederatedFilter:
 
     def condition(self, index: int, value: float) -> None:
         """Condition the local that holds state ``index`` (a plugin state) on its value."""
-        for f in self.locals:
-            where = np.flatnonzero(f.index == index)
-            if where.size:
-                f.kf.condition(int(where[0]), value)
+        for kf, own in self._holders(index):
+            kf.condition(own, value)
         self._fused = None
 
     def restart(self, index: int, value: float, variance: float) -> None:
         """Restart plugin state ``index`` in the local that holds it (a plugin state is
         uncorrelated with the common states afterwards, so the local's share needs no care)."""
+        for kf, own in self._holders(index):
+            kf.restart(own, value, variance)
+        self._fused = None
+
+    def _holders(self, index: int) -> Iterator[tuple[KalmanFilter, int]]:
+        """The local filters holding state ``index`` of the full layout, and its index there."""
         for f in self.locals:
             where = np.flatnonzero(f.index == index)
             if where.size:
-                f.kf.restart(int(where[0]), value, variance)
-        self._fused = None
+                yield f.kf, int(where[0])
 
     def _filters(self) -> list[KalmanFilter]:
         return [f.kf for f in self.locals] + ([self.master] if self.master is not None else [])

@@ -168,9 +168,10 @@ class Plugin(ABC):
             " filter.architecture standalone needs one that has (e.g. uwb)"
         )
 
-    def window_ends(self) -> NDArray[np.float64]:
-        """Times at which online smoothing should close a window (e.g. face ends); default none."""
-        return np.empty(0)
+    def window_ends(self) -> NDArray[np.float64] | None:
+        """Times at which online smoothing should close a window (e.g. face ends; empty when
+        the recording has none); ``None`` (the default): the plugin does not close windows."""
+        return None
 
     def receive_smoothed(
         self,
