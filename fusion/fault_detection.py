@@ -27,6 +27,22 @@ the window,
 outlier among n ≥ 10 cannot trip it; a plugin whose measurement size changes (UWB ranges to a
 varying set of anchors) restarts its window at each change.
 
+χ²_m is M's law only for white innovations. Real sensors against a real IMU leave residuals
+correlated over seconds — BROAD's 10-Hz optical fixes have a lag-1 correlation of 0.96 — and
+then Σ w_k has the variance n·f(n, ρ) per component, for an AR(1) sequence
+
+    f(n, ρ) = (1 + ρ)/(1 − ρ) − 2ρ(1 − ρⁿ) / (n (1 − ρ)²)
+
+(28 for n = 50, ρ = 0.96; uncorrected, the test fired in 60 % of BROAD's 5-s windows). The χ²
+sum keeps its mean d but its variance grows to 2 d g, with g = (1 + ρ²)/(1 − ρ²) per plugin
+(w_k² has lag-j correlation ρ^{2j}), and is tested against Satterthwaite's g·χ²_{d/g}(p), g the
+dof-weighted mean over the window's updates. So each plugin learns
+ρ̂ = Σ w_k·w_{k−1} / Σ ‖w_k‖² over its updates that *passed* every test (exponentially forgotten
+over ``REFERENCE_WINDOWS`` windows; a failing update breaks the chain and teaches nothing, so a
+fault cannot raise its own tolerance) and the tests use M / f(n, ρ̂) and g(ρ̂). The mean test is
+armed once ``REFERENCE_PAIRS`` pairs have been learned; until then the χ² sum (with ρ̂ = 0) and
+the indicators act alone. On the simulator's white innovations ρ̂ ≈ 0 and f ≈ g ≈ 1.
+
 A healthy local that fails the test is *isolated* (excluded from fusion and from resets; it keeps
 filtering on its own). A local that owns a state that may jump (:mod:`fusion.jumps`: a slip) is
 isolated only once it has failed on ``confirm_updates`` consecutive updates: a jump the detector
@@ -49,6 +65,9 @@ from fusion.config import FaultDetectionOptions
 from fusion.kalman import chi2_threshold
 
 MEAN_TEST_MIN_SAMPLES = 10
+REFERENCE_PAIRS = 50
+REFERENCE_WINDOWS = 10.0
+MAX_CORRELATION = 0.99
 
 ISOLATE, READMIT = "isolate", "readmit"
 
@@ -65,6 +84,51 @@ class FaultEvent:
     reason: str
 
 
+def ar1_sum_variance_factor(n: int, rho: float) -> float:
+    """Var(Σ_{k=1..n} w_k) / n for a unit-variance AR(1) sequence with lag-1 correlation ρ."""
+    if rho <= 0.0:
+        return 1.0
+    return (1 + rho) / (1 - rho) - 2 * rho * (1 - rho**n) / (n * (1 - rho) ** 2)
+
+
+def nis_variance_factor(rho: float) -> float:
+    """Var(Σ w_k²) / (2n) for a long unit-variance AR(1) sequence: w_k² has lag-j correlation
+    ρ^{2j}, so (1 + ρ²)/(1 − ρ²)."""
+    return (1 + rho**2) / (1 - rho**2)
+
+
+@dataclass
+class _Correlation:
+    """Lag-1 correlation of one plugin's whitened innovations over its passing updates,
+    exponentially forgotten with time constant ``horizon_s``; ``pairs`` counts every pair
+    learned."""
+
+    horizon_s: float
+    lagged: float = 0.0
+    power: float = 0.0
+    pairs: int = 0
+    previous: tuple[float, NDArray[np.float64]] | None = None
+
+    def learn(self, t: float, whitened: NDArray[np.float64]) -> None:
+        """Add an update that passed; it pairs with the previous one if that passed too."""
+        if self.previous is not None and self.previous[1].size == whitened.size:
+            forget = np.exp(-(t - self.previous[0]) / self.horizon_s)
+            self.lagged = forget * self.lagged + float(whitened @ self.previous[1])
+            self.power = forget * self.power + float(whitened @ whitened)
+            self.pairs += 1
+        self.previous = (t, whitened)
+
+    def break_chain(self) -> None:
+        """A failing update: it is not a sample of the consistent sequence."""
+        self.previous = None
+
+    def rho(self) -> float | None:
+        """ρ̂ in [0, MAX_CORRELATION], or None while fewer than REFERENCE_PAIRS are learned."""
+        if self.pairs < REFERENCE_PAIRS or self.power <= 0.0:
+            return None
+        return float(np.clip(self.lagged / self.power, 0.0, MAX_CORRELATION))
+
+
 @dataclass
 class _MeanWindow:
     """Whitened innovations of one plugin over the window, and their running sum."""
@@ -76,14 +140,16 @@ class _MeanWindow:
     def __post_init__(self) -> None:
         self.total = np.zeros(self.dof)
 
-    def add(self, t: float, whitened: NDArray[np.float64], window_s: float) -> float:
-        """Add one update; return M = ‖Σ w‖² / n (0 below the minimum sample count)."""
+    def add(self, t: float, whitened: NDArray[np.float64], window_s: float, rho: float) -> float:
+        """Add one update; return M = ‖Σ w‖² / (n f(n, ρ)) (0 below the minimum count)."""
         self.samples.append((t, whitened))
         self.total += whitened
         while self.samples[0][0] <= t - window_s:
             self.total -= self.samples.popleft()[1]
         n = len(self.samples)
-        return float(self.total @ self.total) / n if n >= MEAN_TEST_MIN_SAMPLES else 0.0
+        if n < MEAN_TEST_MIN_SAMPLES:
+            return 0.0
+        return float(self.total @ self.total) / (n * ar1_sum_variance_factor(n, rho))
 
 
 class FaultMonitor:
@@ -108,11 +174,13 @@ class FaultMonitor:
         self.confirm_updates = confirm_updates
         self.isolated = False
         self._failing = 0
-        self._window: deque[tuple[float, float, int]] = deque()
+        self._window: deque[tuple[float, float, int, float]] = deque()
         self._nis_sum = 0.0
         self._dof_sum = 0
+        self._spread_sum = 0.0
         self._clean_since: float | None = None
         self._means: dict[str, _MeanWindow] = {}
+        self._correlations: dict[str, _Correlation] = {}
 
     def observe(
         self,
@@ -128,18 +196,23 @@ class FaultMonitor:
         opts = self.options
         if not opts.enabled:
             return None
-        mean_statistic, mean_threshold = self._mean_test(t, source, whitened)
-        self._window.append((t, nis, dof))
+        rho = self._rho(source)
+        mean_statistic, mean_threshold = self._mean_test(t, source, whitened, rho)
+        spread = dof * nis_variance_factor(rho or 0.0)
+        self._window.append((t, nis, dof, spread))
         self._nis_sum += nis
         self._dof_sum += dof
+        self._spread_sum += spread
         while self._window[0][0] <= t - opts.window_s:
-            _, old_nis, old_dof = self._window.popleft()
+            _, old_nis, old_dof, old_spread = self._window.popleft()
             self._nis_sum -= old_nis
             self._dof_sum -= old_dof
+            self._spread_sum -= old_spread
         statistic = max(self._nis_sum, 0.0)
-        threshold = opts.threshold_scale * chi2_threshold(self._dof_sum, opts.probability)
+        threshold = opts.threshold_scale * self._sum_quantile()
         flagged = opts.use_indicators and suspect
         biased = mean_statistic > mean_threshold
+        self._learn(t, source, whitened, passed=not (statistic > threshold or flagged or biased))
         if statistic > threshold or flagged or biased:
             self._clean_since = None
             self._failing += 1
@@ -168,17 +241,47 @@ class FaultMonitor:
         self._window.clear()
         self._nis_sum = 0.0
         self._dof_sum = 0
+        self._spread_sum = 0.0
         self._means.clear()
         self._failing = 0
 
+    def _sum_quantile(self) -> float:
+        """Quantile of the window's NIS sum: χ²_d(p), or with serially correlated plugins
+        Satterthwaite's g·χ²_{d/g}(p), g = Σ m_k g_k / d (same mean d, variance 2 d g)."""
+        g = max(self._spread_sum / self._dof_sum, 1.0)
+        if g < 1.0 + 1e-3:
+            return chi2_threshold(self._dof_sum, self.options.probability)
+        return g * chi2_threshold(max(1, round(self._dof_sum / g)), self.options.probability)
+
+    def _rho(self, source: str) -> float | None:
+        correlation = self._correlations.get(source)
+        return correlation.rho() if correlation is not None else None
+
     def _mean_test(
-        self, t: float, source: str, whitened: NDArray[np.float64] | None
+        self, t: float, source: str, whitened: NDArray[np.float64] | None, rho: float | None
     ) -> tuple[float, float]:
-        """M(t) of plugin ``source`` and its threshold (0, inf when the test is off)."""
+        """M(t) of plugin ``source`` and its threshold (0, inf when the test is off or not
+        yet armed)."""
         if not self.options.mean_test or whitened is None or whitened.size == 0:
             return 0.0, np.inf
         window = self._means.get(source)
         if window is None or window.dof != whitened.size:
             window = self._means[source] = _MeanWindow(whitened.size)
-        statistic = window.add(t, whitened, self.options.window_s)
+        statistic = window.add(t, whitened, self.options.window_s, rho or 0.0)
+        if rho is None:
+            return 0.0, np.inf
         return statistic, chi2_threshold(whitened.size, self.options.probability)
+
+    def _learn(
+        self, t: float, source: str, whitened: NDArray[np.float64] | None, passed: bool
+    ) -> None:
+        """Teach the plugin's serial correlation an update that passed every test."""
+        if whitened is None or whitened.size == 0:
+            return
+        correlation = self._correlations.setdefault(
+            source, _Correlation(REFERENCE_WINDOWS * self.options.window_s)
+        )
+        if passed:
+            correlation.learn(t, whitened)
+        else:
+            correlation.break_chain()

@@ -38,7 +38,11 @@ next measurements move it less and it leans on the global solution, while a prec
 looser reset and its own measurements dominate it; ``inverse_trace`` — β_i ∝ 1/tr(P_i,cc): the
 precise local gets the larger share and the imprecise one a loose reset (it learns from its own
 sensor again). The trace mixes units (m², (m/s)², rad²) and is dominated by position and
-velocity, as in the seed. Shares are recomputed at each fusion from the healthy locals' P_cc.
+velocity, as in the seed. Shares are recomputed at each fusion from the healthy locals' P_cc *at
+unit share*, tr(β_i P_i,cc): the stored P_i,cc carries the 1/β_i of the last reset, and a rule
+fed its own share back (β_i' ∝ tr(P_g)/β_i after a reset) alternates from fusion to fusion with
+a ratio that random-walks as the updates differ — on BROAD trial 30 one local's share reached
+2·10⁻¹⁰ within 40 s and its covariance (P_g/β_i) overflowed.
 
 Jump hypotheses (:mod:`fusion.jumps`): their signature columns ride along with each local's
 estimate — propagated and updated with it, fused with the same weights (E_g = P_g Σ P_i,cc⁻¹
@@ -406,7 +410,7 @@ class FederatedFilter:
 
     def _update_shares(self, members: Sequence[LocalFilter]) -> None:
         rule = self.options.sharing
-        traces = np.array([np.trace(f.kf.P[COMMON, COMMON]) for f in members])
+        traces = np.array([f.beta * np.trace(f.kf.P[COMMON, COMMON]) for f in members])
         if rule == "trace":
             weights = traces
         elif rule == "inverse_trace":

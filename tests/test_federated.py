@@ -103,6 +103,23 @@ def _assert_same_round(fed: FederatedFilter, ckf: CentralizedFilter, step: int) 
     np.testing.assert_allclose(p_f, p_c, rtol=1e-7, atol=1e-14, err_msg=f"step {step}")
 
 
+@pytest.mark.parametrize("sharing", ["trace", "inverse_trace"])
+def test_shares_follow_the_information_not_the_previous_shares(sharing: str) -> None:
+    """Two locals holding the same information at unit share but with shares 0.9 and 0.1 (so
+    their stored P_cc differ ninefold) get equal shares: the rule reads tr(β_i P_i,cc). Read
+    from the stored P_cc, trace sharing would swap the shares at every fusion and let their
+    ratio random-walk (BROAD trial 30: a share of 2e-10 and an overflowing covariance)."""
+    layout = _layout()
+    fed = FederatedFilter(layout, [[], []], ["a", "b"], FederatedOptions(sharing=sharing))
+    p_unit = layout.initial_covariance()
+    for f, beta in zip(fed.locals, (0.9, 0.1), strict=True):
+        f.beta = beta
+        f.kf.P = p_unit / beta
+    fed.feedback(0.0)
+    assert [f.beta for f in fed.locals] == pytest.approx([0.5, 0.5], rel=1e-12)
+    np.testing.assert_allclose(fed.locals[0].kf.P, p_unit / 0.5, rtol=1e-9)  # P_g = P_unit
+
+
 def test_fusion_reset_equals_centralized_with_a_local_owning_states() -> None:
     """A local with its own states (an odometer's mounting angles and scale, say) beside locals
     of common states only: propagating its own states' conditional at unit share keeps the
@@ -254,6 +271,38 @@ def test_mean_test_finds_a_bias_the_chi_square_sum_misses() -> None:
         e = quiet.observe(ti, float(w @ w), 3, False, "odometer", w)
         isolations += e is not None and e.action == ISOLATE
     assert isolations <= 3
+
+
+def _ar1(rng: np.random.Generator, n: int, rho: float, dof: int) -> np.ndarray:
+    """Unit-variance AR(1) sequences, one per column."""
+    w = np.empty((n, dof))
+    w[0] = rng.standard_normal(dof)
+    for k in range(1, n):
+        w[k] = rho * w[k - 1] + np.sqrt(1 - rho**2) * rng.standard_normal(dof)
+    return w
+
+
+def test_mean_test_allows_for_serially_correlated_innovations() -> None:
+    """Innovations correlated like BROAD's optical fixes (lag-1 ρ = 0.95 at 10 Hz) raise no
+    isolation in an hour: the monitor learns ρ and tests ‖Σw‖² against n·f(n, ρ). A 4σ bias on
+    one component of the same sequence for 10 s is still found within the window."""
+    rng = np.random.default_rng(8)
+    times = np.arange(0.0, 3600.0, 0.1)
+    w = _ar1(rng, times.size, 0.95, 3)
+    quiet = FaultMonitor("fix", FaultDetectionOptions())
+    events = [
+        quiet.observe(t, float(v @ v), 3, False, "position", v)
+        for t, v in zip(times, w, strict=True)
+    ]
+    assert [e for e in events if e is not None] == []
+    biased = FaultMonitor("fix", FaultDetectionOptions())
+    found = []
+    for t, v in zip(times[:1200], w[:1200], strict=True):
+        v = v + (4.0 if 60.0 <= t < 70.0 else 0.0) * np.eye(3)[0]
+        e = biased.observe(t, float(v @ v), 3, False, "position", v)
+        if e is not None:
+            found.append(e)
+    assert found and found[0].action == ISOLATE and 60.0 < found[0].t < 65.0
 
 
 def test_monitor_isolates_on_plugin_indicator() -> None:
