@@ -28,20 +28,24 @@ outlier among n ≥ 10 cannot trip it; a plugin whose measurement size changes (
 varying set of anchors) restarts its window at each change.
 
 χ²_m is M's law only for white innovations. Real sensors against a real IMU leave residuals
-correlated over seconds — BROAD's 10-Hz optical fixes have a lag-1 correlation of 0.96 — and
-then Σ w_k has the variance n·f(n, ρ) per component, for an AR(1) sequence
-
-    f(n, ρ) = (1 + ρ)/(1 − ρ) − 2ρ(1 − ρⁿ) / (n (1 − ρ)²)
-
-(28 for n = 50, ρ = 0.96; uncorrected, the test fired in 60 % of BROAD's 5-s windows). The χ²
-sum keeps its mean d but its variance grows to 2 d g, with g = (1 + ρ²)/(1 − ρ²) per plugin
-(w_k² has lag-j correlation ρ^{2j}), and is tested against Satterthwaite's g·χ²_{d/g}(p), g the
-dof-weighted mean over the window's updates. So each plugin learns
-ρ̂ = Σ w_k·w_{k−1} / Σ ‖w_k‖² over its updates that *passed* every test (exponentially forgotten
-over ``REFERENCE_WINDOWS`` windows; a failing update breaks the chain and teaches nothing, so a
-fault cannot raise its own tolerance) and the tests use M / f(n, ρ̂) and g(ρ̂). The mean test is
-armed once ``REFERENCE_PAIRS`` pairs have been learned; until then the χ² sum (with ρ̂ = 0) and
-the indicators act alone. On the simulator's white innovations ρ̂ ≈ 0 and f ≈ g ≈ 1.
+correlated over seconds — BROAD's 10-Hz optical fixes have a lag-1 correlation of 0.96, its
+magnetometer a heading residual that drifts with the board's attitude — and then ‖Σ w_k‖² / n
+has the mean f·m with f > 1 (for an AR(1) sequence f = (1 + ρ)/(1 − ρ) − 2ρ(1 − ρⁿ)/(n(1 − ρ)²),
+28 for n = 50, ρ = 0.96; uncorrected, the test fired in 60 % of BROAD's 5-s windows). Each
+plugin therefore learns, from its updates that *passed* every test, the factor
+f̂ = mean of ‖Σ w‖² / (n m) over their windows (a batch-means estimate of the long-run variance,
+whatever the correlation's shape) and its lag-1 correlation ρ̂; the mean test divides M by the
+larger of f̂, the AR(1) factor of ρ̂ and 1 (the batch estimate lags a change of regime — rest to
+motion — that ρ̂, from adjacent pairs, follows sooner).
+The χ² sum keeps its mean d but its variance grows to 2 d g, g = (1 + ρ̂²)/(1 − ρ̂²) per
+plugin (w_k² has lag-j correlation ρ^{2j}); it is tested against Satterthwaite's g·χ²_{d/g}(p),
+g the dof-weighted mean over the window. Both are exponentially forgotten over
+``REFERENCE_WINDOWS`` windows; a failing update teaches nothing (and breaks the lag chain), so a
+fault does not raise its own tolerance — a slowly growing one can, which is the price of
+learning the null from the data. ρ̂ is used once ``REFERENCE_PAIRS`` pairs are learned (0
+before); the mean test is armed once the plugin has been learned over ``REFERENCE_SPAN_WINDOWS``
+windows, until then the χ² sum and the indicators act alone. On the simulator's white
+innovations f̂ ≈ 1 and ρ̂ ≈ 0.
 
 A healthy local that fails the test is *isolated* (excluded from fusion and from resets; it keeps
 filtering on its own). A local that owns a state that may jump (:mod:`fusion.jumps`: a slip) is
@@ -65,7 +69,8 @@ from fusion.config import FaultDetectionOptions
 from fusion.kalman import chi2_threshold
 
 MEAN_TEST_MIN_SAMPLES = 10
-REFERENCE_PAIRS = 50
+REFERENCE_SPAN_WINDOWS = 3.0
+REFERENCE_PAIRS = 20
 REFERENCE_WINDOWS = 10.0
 MAX_CORRELATION = 0.99
 
@@ -98,35 +103,62 @@ def nis_variance_factor(rho: float) -> float:
 
 
 @dataclass
-class _Correlation:
-    """Lag-1 correlation of one plugin's whitened innovations over its passing updates,
-    exponentially forgotten with time constant ``horizon_s``; ``pairs`` counts every pair
-    learned."""
+class _Reference:
+    """How one plugin's whitened innovations behave while it passes every test, exponentially
+    forgotten with time constant ``horizon_s``: the lag-1 correlation ρ̂ and the window-sum
+    variance factor f̂ = mean of ‖Σ w‖² / (n m) over the learned windows."""
 
     horizon_s: float
     lagged: float = 0.0
     power: float = 0.0
+    ratio_sum: float = 0.0
+    ratio_weight: float = 0.0
     pairs: int = 0
-    previous: tuple[float, NDArray[np.float64]] | None = None
+    first_t: float | None = None
+    last_t: float | None = None
+    previous: NDArray[np.float64] | None = None
 
-    def learn(self, t: float, whitened: NDArray[np.float64]) -> None:
-        """Add an update that passed; it pairs with the previous one if that passed too."""
-        if self.previous is not None and self.previous[1].size == whitened.size:
-            forget = np.exp(-(t - self.previous[0]) / self.horizon_s)
-            self.lagged = forget * self.lagged + float(whitened @ self.previous[1])
-            self.power = forget * self.power + float(whitened @ whitened)
+    def learn(self, t: float, whitened: NDArray[np.float64], window_ratio: float | None) -> None:
+        """Add an update that passed (``window_ratio``: its window's ‖Σ w‖² / (n m), None
+        while the window is short); it pairs with the previous one if that passed too."""
+        forget = 1.0 if self.last_t is None else np.exp(-(t - self.last_t) / self.horizon_s)
+        self.lagged *= forget
+        self.power *= forget
+        self.ratio_sum *= forget
+        self.ratio_weight *= forget
+        if self.previous is not None and self.previous.size == whitened.size:
+            self.lagged += float(whitened @ self.previous)
+            self.power += float(whitened @ whitened)
             self.pairs += 1
-        self.previous = (t, whitened)
+        if window_ratio is not None:
+            self.ratio_sum += window_ratio
+            self.ratio_weight += 1.0
+            self.first_t = t if self.first_t is None else self.first_t
+        self.previous, self.last_t = whitened, t
 
     def break_chain(self) -> None:
         """A failing update: it is not a sample of the consistent sequence."""
         self.previous = None
 
-    def rho(self) -> float | None:
-        """ρ̂ in [0, MAX_CORRELATION], or None while fewer than REFERENCE_PAIRS are learned."""
+    def armed(self, window_s: float) -> bool:
+        """Learned over at least ``REFERENCE_SPAN_WINDOWS`` windows."""
+        return (
+            self.first_t is not None
+            and self.last_t is not None
+            and self.last_t - self.first_t >= REFERENCE_SPAN_WINDOWS * window_s
+        )
+
+    def rho(self) -> float:
+        """ρ̂ in [0, MAX_CORRELATION] (0 until ``REFERENCE_PAIRS`` pairs are learned)."""
         if self.pairs < REFERENCE_PAIRS or self.power <= 0.0:
-            return None
+            return 0.0
         return float(np.clip(self.lagged / self.power, 0.0, MAX_CORRELATION))
+
+    def sum_factor(self, n: int) -> float:
+        """f̂ for a window of n updates: the larger of the batch-means estimate and the AR(1)
+        factor of ρ̂, never below 1 (never stricter than the plugin's own noise model)."""
+        batch = self.ratio_sum / self.ratio_weight if self.ratio_weight else 1.0
+        return max(1.0, batch, ar1_sum_variance_factor(n, self.rho()))
 
 
 @dataclass
@@ -140,16 +172,16 @@ class _MeanWindow:
     def __post_init__(self) -> None:
         self.total = np.zeros(self.dof)
 
-    def add(self, t: float, whitened: NDArray[np.float64], window_s: float, rho: float) -> float:
-        """Add one update; return M = ‖Σ w‖² / (n f(n, ρ)) (0 below the minimum count)."""
+    def add(
+        self, t: float, whitened: NDArray[np.float64], window_s: float
+    ) -> tuple[float, int] | None:
+        """Add one update; return ‖Σ w‖² / n and n (None below the minimum count)."""
         self.samples.append((t, whitened))
         self.total += whitened
         while self.samples[0][0] <= t - window_s:
             self.total -= self.samples.popleft()[1]
         n = len(self.samples)
-        if n < MEAN_TEST_MIN_SAMPLES:
-            return 0.0
-        return float(self.total @ self.total) / (n * ar1_sum_variance_factor(n, rho))
+        return (float(self.total @ self.total) / n, n) if n >= MEAN_TEST_MIN_SAMPLES else None
 
 
 class FaultMonitor:
@@ -180,7 +212,7 @@ class FaultMonitor:
         self._spread_sum = 0.0
         self._clean_since: float | None = None
         self._means: dict[str, _MeanWindow] = {}
-        self._correlations: dict[str, _Correlation] = {}
+        self._references: dict[str, _Reference] = {}
 
     def observe(
         self,
@@ -196,9 +228,17 @@ class FaultMonitor:
         opts = self.options
         if not opts.enabled:
             return None
-        rho = self._rho(source)
-        mean_statistic, mean_threshold = self._mean_test(t, source, whitened, rho)
-        spread = dof * nis_variance_factor(rho or 0.0)
+        reference = self._references.setdefault(
+            source, _Reference(REFERENCE_WINDOWS * opts.window_s)
+        )
+        armed = reference.armed(opts.window_s)
+        raw_mean = self._window_mean(t, source, whitened)
+        mean_statistic, mean_threshold = 0.0, np.inf
+        if armed and raw_mean is not None and whitened is not None:
+            mean_statistic = raw_mean[0] / reference.sum_factor(raw_mean[1])
+            mean_threshold = chi2_threshold(whitened.size, opts.probability)
+        rho = reference.rho()
+        spread = dof * nis_variance_factor(rho)
         self._window.append((t, nis, dof, spread))
         self._nis_sum += nis
         self._dof_sum += dof
@@ -212,7 +252,12 @@ class FaultMonitor:
         threshold = opts.threshold_scale * self._sum_quantile()
         flagged = opts.use_indicators and suspect
         biased = mean_statistic > mean_threshold
-        self._learn(t, source, whitened, passed=not (statistic > threshold or flagged or biased))
+        if whitened is not None and whitened.size:
+            if statistic > threshold or flagged or biased:
+                reference.break_chain()
+            else:
+                ratio = None if raw_mean is None else raw_mean[0] / whitened.size
+                reference.learn(t, whitened, ratio)
         if statistic > threshold or flagged or biased:
             self._clean_since = None
             self._failing += 1
@@ -253,35 +298,14 @@ class FaultMonitor:
             return chi2_threshold(self._dof_sum, self.options.probability)
         return g * chi2_threshold(max(1, round(self._dof_sum / g)), self.options.probability)
 
-    def _rho(self, source: str) -> float | None:
-        correlation = self._correlations.get(source)
-        return correlation.rho() if correlation is not None else None
-
-    def _mean_test(
-        self, t: float, source: str, whitened: NDArray[np.float64] | None, rho: float | None
-    ) -> tuple[float, float]:
-        """M(t) of plugin ``source`` and its threshold (0, inf when the test is off or not
-        yet armed)."""
+    def _window_mean(
+        self, t: float, source: str, whitened: NDArray[np.float64] | None
+    ) -> tuple[float, int] | None:
+        """‖Σ w‖² / n and n over plugin ``source``'s window (None when the test is off or the
+        window is short)."""
         if not self.options.mean_test or whitened is None or whitened.size == 0:
-            return 0.0, np.inf
+            return None
         window = self._means.get(source)
         if window is None or window.dof != whitened.size:
             window = self._means[source] = _MeanWindow(whitened.size)
-        statistic = window.add(t, whitened, self.options.window_s, rho or 0.0)
-        if rho is None:
-            return 0.0, np.inf
-        return statistic, chi2_threshold(whitened.size, self.options.probability)
-
-    def _learn(
-        self, t: float, source: str, whitened: NDArray[np.float64] | None, passed: bool
-    ) -> None:
-        """Teach the plugin's serial correlation an update that passed every test."""
-        if whitened is None or whitened.size == 0:
-            return
-        correlation = self._correlations.setdefault(
-            source, _Correlation(REFERENCE_WINDOWS * self.options.window_s)
-        )
-        if passed:
-            correlation.learn(t, whitened)
-        else:
-            correlation.break_chain()
+        return window.add(t, whitened, self.options.window_s)
