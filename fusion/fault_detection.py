@@ -231,34 +231,21 @@ class FaultMonitor:
         reference = self._references.setdefault(
             source, _Reference(REFERENCE_WINDOWS * opts.window_s)
         )
-        armed = reference.armed(opts.window_s)
         raw_mean = self._window_mean(t, source, whitened)
         mean_statistic, mean_threshold = 0.0, np.inf
-        if armed and raw_mean is not None and whitened is not None:
+        if reference.armed(opts.window_s) and raw_mean is not None and whitened is not None:
             mean_statistic = raw_mean[0] / reference.sum_factor(raw_mean[1])
             mean_threshold = chi2_threshold(whitened.size, opts.probability)
-        rho = reference.rho()
-        spread = dof * nis_variance_factor(rho)
-        self._window.append((t, nis, dof, spread))
-        self._nis_sum += nis
-        self._dof_sum += dof
-        self._spread_sum += spread
-        while self._window[0][0] <= t - opts.window_s:
-            _, old_nis, old_dof, old_spread = self._window.popleft()
-            self._nis_sum -= old_nis
-            self._dof_sum -= old_dof
-            self._spread_sum -= old_spread
-        statistic = max(self._nis_sum, 0.0)
-        threshold = opts.threshold_scale * self._sum_quantile()
+        statistic, threshold = self._window_chi_square(t, nis, dof, reference.rho())
         flagged = opts.use_indicators and suspect
         biased = mean_statistic > mean_threshold
+        failing = statistic > threshold or flagged or biased
         if whitened is not None and whitened.size:
-            if statistic > threshold or flagged or biased:
+            if failing:
                 reference.break_chain()
             else:
-                ratio = None if raw_mean is None else raw_mean[0] / whitened.size
-                reference.learn(t, whitened, ratio)
-        if statistic > threshold or flagged or biased:
+                reference.learn(t, whitened, None if raw_mean is None else raw_mean[0] / dof)
+        if failing:
             self._clean_since = None
             self._failing += 1
             if not self.isolated and self._failing > self.confirm_updates:
@@ -289,6 +276,20 @@ class FaultMonitor:
         self._spread_sum = 0.0
         self._means.clear()
         self._failing = 0
+
+    def _window_chi_square(self, t: float, nis: float, dof: int, rho: float) -> tuple[float, float]:
+        """Add one update to the local's window; return T(t) and its threshold."""
+        spread = dof * nis_variance_factor(rho)
+        self._window.append((t, nis, dof, spread))
+        self._nis_sum += nis
+        self._dof_sum += dof
+        self._spread_sum += spread
+        while self._window[0][0] <= t - self.options.window_s:
+            _, old_nis, old_dof, old_spread = self._window.popleft()
+            self._nis_sum -= old_nis
+            self._dof_sum -= old_dof
+            self._spread_sum -= old_spread
+        return max(self._nis_sum, 0.0), self.options.threshold_scale * self._sum_quantile()
 
     def _sum_quantile(self) -> float:
         """Quantile of the window's NIS sum: χ²_d(p), or with serially correlated plugins
