@@ -59,6 +59,7 @@ interruption for ``hold_s`` seconds. Every transition is a :class:`FaultEvent` (
 
 from __future__ import annotations
 
+import math
 from collections import deque
 from dataclasses import dataclass, field
 
@@ -121,7 +122,7 @@ class _Reference:
     def learn(self, t: float, whitened: NDArray[np.float64], window_ratio: float | None) -> None:
         """Add an update that passed (``window_ratio``: its window's ‖Σ w‖² / (n m), None
         while the window is short); it pairs with the previous one if that passed too."""
-        forget = 1.0 if self.last_t is None else np.exp(-(t - self.last_t) / self.horizon_s)
+        forget = 1.0 if self.last_t is None else math.exp(-(t - self.last_t) / self.horizon_s)
         self.lagged *= forget
         self.power *= forget
         self.ratio_sum *= forget
@@ -152,7 +153,7 @@ class _Reference:
         """ρ̂ in [0, MAX_CORRELATION] (0 until ``REFERENCE_PAIRS`` pairs are learned)."""
         if self.pairs < REFERENCE_PAIRS or self.power <= 0.0:
             return 0.0
-        return float(np.clip(self.lagged / self.power, 0.0, MAX_CORRELATION))
+        return min(max(self.lagged / self.power, 0.0), MAX_CORRELATION)
 
     def sum_factor(self, n: int) -> float:
         """f̂ for a window of n updates: the larger of the batch-means estimate and the AR(1)

@@ -21,7 +21,7 @@ A bridged gap ``(t_a, t_b]`` of length ``T`` is therefore given
 
       δx(t_b) = G δ,   G = (I T + F T²/2 + F² T³/6) B,   Q_gap = G diag(σ²) Gᵀ
 
-  with ``B`` the bias columns of ``F`` restricted to the navigation rows. The engine adds
+  with ``B`` the bias columns of ``F`` without the bias rows. The engine adds
   ``Q_gap`` once, at the first covariance step that reaches into the gap — early rather than
   late, so measurements inside the gap are not judged against a covariance that does not know
   the gap yet.
@@ -82,9 +82,9 @@ class GapBridge:
             Where the two bias blocks sit in the state.
         """
         n = f.shape[0]
-        b = np.zeros((n, 6))
-        b[0:9, 0:3] = f[0:9, gyro_bias]
-        b[0:9, 3:6] = f[0:9, accel_bias]
+        b = np.hstack([f[:, gyro_bias], f[:, accel_bias]])
+        b[gyro_bias] = 0.0  # δ is not a change of the bias states themselves
+        b[accel_bias] = 0.0
         t = self.length_s
         ft = f * t
         g = (np.eye(n) * t + ft * t / 2.0 + ft @ ft * t / 6.0) @ b
