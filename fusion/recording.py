@@ -846,29 +846,86 @@ def _read_table(
     The file is read as it streams, in blocks of whole lines (:func:`_line_blocks`), each parsed
     with :func:`numpy.loadtxt`; a block that fails (or whose row count shows skipped blank
     lines) is re-parsed line by line to report each bad line, so one bad cell in a huge file
-    costs one slow block, not a slow file.
+    costs one slow block, not a slow file. Each block's rows are copied into arrays sized from
+    the file's length (:class:`_TableBuilder`).
     """
+    size = None if path.name.endswith(".gz") else path.stat().st_size
     try:
         with _open_csv(path) as stream:
-            parsed = _parse_lines(_line_blocks(stream), columns, rep, text_col)
+            table = _parse_lines(_line_blocks(stream), columns, rep, text_col, size)
     except (OSError, EOFError, zlib.error, gzip.BadGzipFile) as exc:
         rep.add("read", "", f"cannot read {label}: {exc}")
         return None
-    if parsed is None:
-        return None
-    values, lines, texts = parsed
-    table = _Table(
-        np.concatenate(values),
-        np.concatenate(lines),
-        np.concatenate(texts) if text_col is not None else None,
-    )
-    _drop_nonfinite(table, columns, rep, text_col)
+    if table is not None:
+        _drop_nonfinite(table, columns, rep, text_col)
     return table
 
 
+class _TableBuilder:
+    """Rows gathered block by block into arrays allocated once, at the size the file's length
+    predicts (grown by half when the prediction falls short).
+
+    Keeping each block's parsed array until the end and concatenating them held the table twice,
+    and the freed blocks stayed in the allocator's heap: reading an 8-hour recording left the
+    process at 800 MB for a 300 MB recording. Here a block's temporaries are freed before the
+    next block is parsed, so the heap reuses the same few megabytes.
+
+    Parameters
+    ----------
+    k
+        Number of columns.
+    file_bytes
+        Length of the file, or None when unknown (compressed).
+    """
+
+    def __init__(self, k: int, file_bytes: int | None) -> None:
+        self.values = np.empty((0, k))
+        self.lines = np.empty(0, dtype=np.int64)
+        self.texts: list[npt.NDArray[np.str_]] = []
+        self.n = 0
+        self._file_bytes = file_bytes
+        self._bytes_read = 0
+
+    def add(
+        self, values: FloatArray, lines: IntArray, text: npt.NDArray[np.str_], n_bytes: int
+    ) -> None:
+        """Append one block's rows (``n_bytes`` of the file)."""
+        self._bytes_read += n_bytes
+        end = self.n + values.shape[0]
+        if end > self.values.shape[0]:
+            self._grow(end)
+        self.values[self.n : end] = values
+        self.lines[self.n : end] = lines
+        self.texts.append(text)
+        self.n = end
+
+    def _grow(self, needed: int) -> None:
+        predicted = 0
+        if self._file_bytes:
+            predicted = int(needed * 1.02 * self._file_bytes / max(self._bytes_read, 1)) + 16
+        capacity = max(needed, predicted, int(1.5 * self.values.shape[0]))
+        values = np.empty((capacity, self.values.shape[1]))
+        values[: self.n] = self.values[: self.n]
+        lines = np.empty(capacity, dtype=np.int64)
+        lines[: self.n] = self.lines[: self.n]
+        self.values, self.lines = values, lines
+
+    def table(self, with_text: bool) -> _Table:
+        """The rows gathered (a copy at the exact size when the capacity overshot by a fifth)."""
+        values, lines = self.values[: self.n], self.lines[: self.n]
+        if self.n < 0.8 * self.values.shape[0]:
+            values, lines = values.copy(), lines.copy()
+        text = np.concatenate([np.empty(0, dtype=str), *self.texts]) if with_text else None
+        return _Table(values, lines, text)
+
+
 def _parse_lines(
-    blocks: Iterator[bytes], columns: Sequence[str], rep: _Reporter, text_col: int | None
-) -> tuple[list[FloatArray], list[IntArray], list[npt.NDArray[np.str_]]] | None:
+    blocks: Iterator[bytes],
+    columns: Sequence[str],
+    rep: _Reporter,
+    text_col: int | None,
+    file_bytes: int | None,
+) -> _Table | None:
     """Check the header line and parse the body block by block (see :func:`_read_table`);
     None when the file is empty or its header is wrong."""
     k = len(columns)
@@ -884,9 +941,7 @@ def _parse_lines(
         blocks = itertools.chain([following], blocks)
     if not _check_header(header, columns, rep):
         return None
-    values: list[FloatArray] = [np.empty((0, k))]
-    lines: list[IntArray] = [np.empty(0, dtype=np.int64)]
-    texts: list[npt.NDArray[np.str_]] = [np.empty(0, dtype=str)]
+    builder = _TableBuilder(k, file_bytes)
     first_line = 2
     for block in itertools.chain([body] if nl >= 0 else [], blocks):
         n_lines = block.count(b"\n") + 1
@@ -896,11 +951,9 @@ def _parse_lines(
             row_lines = parsed[2]
         else:
             row_lines = np.arange(first_line, first_line + n_lines, dtype=np.int64)
-        values.append(parsed[0])
-        texts.append(parsed[1])
-        lines.append(row_lines)
+        builder.add(parsed[0], row_lines, parsed[1], len(block) + 1)
         first_line += n_lines
-    return values, lines, texts
+    return builder.table(text_col is not None)
 
 
 def _parse_block(

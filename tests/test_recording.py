@@ -424,6 +424,31 @@ def test_blocks_of_any_size_read_the_same(
     assert p.where == "line 10" and "empty line" in p.rule
 
 
+def test_rows_gathered_whatever_the_size_prediction(
+    rec: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The rows are gathered into arrays sized from the file's length; a compressed file (length
+    unknown) and a file whose first lines are longer than the rest (prediction too small) grow
+    them, with the same values and line numbers."""
+    reference = read_recording(rec)
+    monkeypatch.setattr("fusion.recording._BLOCK_BYTES", 64)
+    path = rec / "imu.csv"
+    lines = path.read_bytes().split(b"\n")
+    lines[1] = b"0" * 60 + lines[1]  # a long first row
+    path.write_bytes(b"\n".join(lines))
+    longer_first = read_recording(rec)
+    (rec / "imu.csv.gz").write_bytes(gzip.compress(path.read_bytes()))
+    path.unlink()
+    compressed = read_recording(rec)
+    for again in (longer_first, compressed):
+        np.testing.assert_array_equal(again.imu.t, reference.imu.t)
+        np.testing.assert_array_equal(again.imu.gyro, reference.imu.gyro)
+    lines[39] = b""
+    (rec / "imu.csv.gz").write_bytes(gzip.compress(b"\n".join(lines)))
+    p = only(problems_of(rec))
+    assert p.where == "line 40" and "empty line" in p.rule
+
+
 def test_missing_fields(rec: Path) -> None:
     set_line(rec / "imu.csv", 12, "0.1,0,0")
     p = only(problems_of(rec))
