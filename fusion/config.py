@@ -167,7 +167,7 @@ class SmootherOptions(_Strict):
 
     mode: Literal["off", "whole", "online"] = "off"
     memory_budget_mb: float = Field(
-        256.0, ge=0, description="stored steps beyond this spill to a temporary directory"
+        256.0, ge=0, description="stored output rows beyond this spill to a temporary directory"
     )
 
 

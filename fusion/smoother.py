@@ -29,9 +29,22 @@ fused prior before and the fused posterior after each update round, Φ_cc). This
 approximation: it treats the fused estimate as if it came from a centralized filter over the
 common states alone, ignoring the locals' own states and the suboptimality of the fusion.
 
-Memory: a :class:`StepStore` keeps the steps of one smoothing window in chunks; chunks beyond a
-memory budget are numpy memory maps in a temporary directory (spill to disk). Online smoothing
-(at each face end) keeps only the pass being smoothed.
+Folding between output epochs. Written as an affine map, one backward step is
+
+    ê_k = a_k + C_k ê_{k+1},             a_k = x_k⁺ − C_k x_{k+1}⁻
+    P_k^s = B_k + C_k P_{k+1}^s C_kᵀ,     B_k = P_k⁺ − C_k P_{k+1}⁻ C_kᵀ = P_k⁺ − M_k C_kᵀ
+
+with M_k = P_k⁺ Φ_kᵀ (so C_k = M_k (P_{k+1}⁻)⁻¹). Affine maps compose, so the steps between
+output epoch j and the next output epoch m fold into one map ê_j = A_j + G_j ê_m,
+P_j^s = B̄_j + G_j P_m^s G_jᵀ, built in the forward pass as each step arrives
+(A ← A + G a_k, B̄ ← B̄ + G B_k Gᵀ, G ← G C_k, starting from 0, 0, I at j). Only one row per
+output epoch is kept — (A_j, G_j, B̄_j, u_j) — instead of one per step: an 8-hour shift with a
+UWB range every 7 ms has 14 filter steps per 0.1-s output epoch. The backward pass then walks
+the output epochs only, from ê_N = x_N⁺, P_N^s = P_N⁺ at the window's last step.
+
+Memory: a :class:`StepStore` keeps the rows of one smoothing window in chunks; chunks beyond a
+memory budget are ``.npy`` files in a temporary directory (spill to disk). Online smoothing (at
+each face end) keeps only the pass being smoothed.
 """
 
 from __future__ import annotations
@@ -51,18 +64,19 @@ from fusion.strapdown import NAV_SIZE, remove_errors
 
 CHUNK = 2048
 Rows = tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]
-FIELDS = ("phi", "x_prior", "p_prior", "x_post", "p_post", "feedback")
-MATRICES = ("phi", "p_prior", "p_post")
-Step = dict[str, NDArray[np.float64]]
+FIELDS = ("offset", "gain", "covariance", "feedback")
+MATRICES = ("gain", "covariance")
+Segment = dict[str, NDArray[np.float64]]
 
 
 class StepStore:
-    """What the forward filter stored at each step of a smoothing window.
+    """The RTS recursion of one smoothing window, folded between output epochs as the forward
+    filter stores its steps (see the module docstring).
 
-    Steps are kept in chunks of :data:`CHUNK` rows, one row per step holding every field of
-    :data:`FIELDS` side by side. Completed chunks beyond the memory budget are written to a
-    temporary directory as ``.npy`` files and read back one at a time by :meth:`backward`, so
-    the resident memory stays near the budget whatever the window's length.
+    One row per output epoch holds the fields of :data:`FIELDS` side by side: the folded map's
+    offset A_j, gain G_j and covariance B̄_j, and the feedback u_j applied at that epoch. Rows are
+    kept in chunks of :data:`CHUNK`; completed chunks beyond the memory budget are written to a
+    temporary directory and read back one at a time by :meth:`backward`.
 
     Parameters
     ----------
@@ -81,15 +95,23 @@ class StepStore:
         self._width = int(ends[-1])
         self._chunks: list[NDArray[np.float64] | Path] = []
         self.t = array("d")
-        self.output = array("b")
-        self.n = 0
+        self.n = 0  # steps stored
+        self.n_rows = 0  # output epochs stored
         self._bytes = 0.0
         self._spill: Path | None = None
+        self._latest: tuple[NDArray[np.float64], NDArray[np.float64]] | None = None
+        self._open: Segment | None = None
 
     @property
     def spilled(self) -> bool:
         """Whether some chunks live on disk."""
         return self._spill is not None
+
+    @property
+    def last_posterior(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """x_N⁺, P_N⁺ of the latest step: where the backward recursion starts."""
+        assert self._latest is not None
+        return self._latest
 
     def append(
         self,
@@ -100,18 +122,54 @@ class StepStore:
         feedback: NDArray[np.float64],
         output: bool,
     ) -> None:
-        """Store one step: Φ from the previous step, prior, posterior, applied feedback."""
-        i = self.n % CHUNK
+        """Fold one step — Φ from the previous step, prior, posterior, applied feedback — into
+        the open segment; an output epoch closes it and opens the next."""
+        if self._open is not None:
+            self._fold(phi, prior)
+        if output:
+            self.close_segment()
+            dim = self.dim
+            self._open = {
+                "offset": np.zeros(dim),
+                "gain": np.eye(dim),
+                "covariance": np.zeros((dim, dim)),
+                "feedback": np.array(feedback, dtype=float),
+            }
+            self.t.append(t)
+        self._latest = (np.array(posterior[0], dtype=float), np.array(posterior[1], dtype=float))
+        self.n += 1
+
+    def _fold(
+        self, phi: NDArray[np.float64], prior: tuple[NDArray[np.float64], NDArray[np.float64]]
+    ) -> None:
+        """Compose the open segment's map with the backward step from the latest step k to the
+        step k + 1 arriving (``phi`` = Φ_k, ``prior`` = x_{k+1}⁻, P_{k+1}⁻)."""
+        assert self._open is not None and self._latest is not None
+        x_post, p_post = self._latest
+        x_prior, p_prior = prior
+        m = p_post @ phi.T
+        gain = _solve_psd(p_prior, m.T).T
+        seg = self._open
+        g = seg["gain"]
+        seg["offset"] += g @ (x_post - gain @ x_prior)
+        seg["covariance"] += g @ (p_post - m @ gain.T) @ g.T
+        seg["gain"] = g @ gain
+
+    def close_segment(self) -> None:
+        """Store the open segment as a row (its map then ends at the latest step)."""
+        seg = self._open
+        if seg is None:
+            return
+        self._open = None
+        seg["covariance"] = 0.5 * (seg["covariance"] + seg["covariance"].T)
+        i = self.n_rows % CHUNK
         if i == 0:
             self._chunks.append(np.empty((CHUNK, self._width)))
         row = self._chunks[-1][i]  # type: ignore[index]
-        values = (phi, prior[0], prior[1], posterior[0], posterior[1], feedback)
-        for field, value in zip(FIELDS, values, strict=True):
+        for field, value in seg.items():
             row[self._columns[field]] = value.ravel()
-        self.t.append(t)
-        self.output.append(output)
-        self.n += 1
-        if self.n % CHUNK == 0:
+        self.n_rows += 1
+        if self.n_rows % CHUNK == 0:
             self._retire()
 
     def _retire(self) -> None:
@@ -127,22 +185,22 @@ class StepStore:
         np.save(path, chunk)
         self._chunks[-1] = path
 
-    def _step(self, block: NDArray[np.float64], i: int) -> Step:
+    def _row(self, block: NDArray[np.float64], i: int) -> Segment:
         n = self.dim
         row = block[i]
         return {
             f: row[c].reshape(n, n) if f in MATRICES else row[c] for f, c in self._columns.items()
         }
 
-    def backward(self) -> Iterator[tuple[int, Step]]:
-        """Every stored step, last first, as ``(k, fields)``; a spilled chunk is read when the
+    def backward(self) -> Iterator[tuple[int, Segment]]:
+        """Every stored row, last first, as ``(j, fields)``; a spilled chunk is read when the
         recursion reaches it and released after."""
         for index in range(len(self._chunks) - 1, -1, -1):
             chunk = self._chunks[index]
             block = np.load(chunk) if isinstance(chunk, Path) else chunk
-            count = min(CHUNK, self.n - index * CHUNK)
+            count = min(CHUNK, self.n_rows - index * CHUNK)
             for i in range(count - 1, -1, -1):
-                yield index * CHUNK + i, self._step(block, i)
+                yield index * CHUNK + i, self._row(block, i)
 
     def close(self) -> None:
         """Free the memory and delete any spill files."""
@@ -161,33 +219,23 @@ def _solve_psd(a: NDArray[np.float64], b: NDArray[np.float64]) -> NDArray[np.flo
         return np.asarray(np.linalg.lstsq(a, b, rcond=None)[0], dtype=np.float64)
 
 
-def rts(
-    store: StepStore, keep: NDArray[np.bool_] | None = None
-) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-    """Smoothed errors d_k = ê_k − u_k of the fed-back state, and P_k^s, at the kept steps.
+def rts(store: StepStore) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Smoothed errors d_j = ê_j − u_j of the fed-back state, and P_j^s, at the output epochs.
 
-    ``keep`` selects the steps to return (default: the steps stored as output epochs). The
-    recursion runs from the last step of the window (where the smoothed estimate is the filtered
-    one) back to the first; the prior of the first step is not used.
+    The recursion starts at the window's last step (where the smoothed estimate is the filtered
+    one) and walks the folded rows back to the first output epoch.
     """
-    keep = np.asarray(store.output if keep is None else keep, dtype=bool)
-    rows = np.cumsum(keep) - 1
-    d_out = np.empty((int(keep.sum()), store.dim))
-    p_out = np.empty((int(keep.sum()), store.dim, store.dim))
-    later: Step | None = None  # step k + 1 (its prior and Φ)
-    for k, step in store.backward():
-        if later is None:
-            e_next, p_next = step["x_post"].copy(), step["p_post"].copy()
-        else:
-            p_post = step["p_post"]
-            gain = _solve_psd(later["p_prior"], later["phi"] @ p_post).T
-            e_next = step["x_post"] + gain @ (e_next - later["x_prior"])
-            p_next = p_post + gain @ (p_next - later["p_prior"]) @ gain.T
-            p_next = 0.5 * (p_next + p_next.T)
-        if keep[k]:
-            d_out[rows[k]] = e_next - step["feedback"]
-            p_out[rows[k]] = p_next
-        later = step
+    store.close_segment()
+    d_out = np.empty((store.n_rows, store.dim))
+    p_out = np.empty((store.n_rows, store.dim, store.dim))
+    e, p = store.last_posterior
+    for j, row in store.backward():
+        g = row["gain"]
+        e = row["offset"] + g @ e
+        p = row["covariance"] + g @ p @ g.T
+        p = 0.5 * (p + p.T)
+        d_out[j] = e - row["feedback"]
+        p_out[j] = p
     return d_out, p_out
 
 
@@ -248,9 +296,9 @@ class WindowedSmoother:
         store = self.store
         self.peak_steps = max(self.peak_steps, store.n)
         self.spilled |= store.spilled
-        if any(store.output):
+        if len(store.t):
             d, p_s = rts(store)
-            times = np.asarray(store.t)[np.asarray(store.output, dtype=bool)]
+            times = np.asarray(store.t)
             for t, smoothed, dk, pk in zip(times, self._navs.to_array(), d, p_s, strict=True):
                 remove_errors(smoothed, dk[0:3], dk[3:6], dk[6:9])
                 self.t.append(t)
