@@ -58,18 +58,18 @@ If every local is isolated the fusion uses them all (there is nothing better to 
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Iterator, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
-import scipy.linalg
 from numpy.typing import NDArray
 
 from fusion.config import FederatedOptions
 from fusion.error_model import POSITION, StateLayout
 from fusion.fault_detection import READMIT, FaultEvent, FaultMonitor
 from fusion.filter_bank import COMMON
-from fusion.kalman import KalmanFilter, UpdateResult
+from fusion.kalman import KalmanFilter, UpdateResult, cholesky_solve
 
 N_COMMON = 15
 OWN = slice(N_COMMON, None)
@@ -86,6 +86,10 @@ class LocalFilter:
     beta: float
     monitor: FaultMonitor
     reinitialize: bool = False
+    block: tuple[NDArray[np.intp], ...] = field(init=False, repr=False)
+
+    def __post_init__(self) -> None:
+        self.block = np.ix_(self.index, self.index)  # this local's block of a full matrix
 
     def regression(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         """The own states' regression on the common ones, K = P_pc P_cc⁻¹, and their
@@ -159,18 +163,25 @@ class LocalFilter:
         return p
 
 
+@functools.cache
+def _identity(n: int) -> NDArray[np.float64]:
+    eye = np.eye(n)
+    eye.flags.writeable = False
+    return eye
+
+
 def _spd_inverse(p: NDArray[np.float64]) -> NDArray[np.float64]:
     """Inverse of a (scaled) covariance; if rounding has made it indefinite, the inverse of its
     nearest positive definite matrix (eigenvalues floored at 1e-12 of the largest)."""
     sym = 0.5 * (p + p.T)
-    try:
-        return scipy.linalg.cho_solve(
-            scipy.linalg.cho_factor(sym), np.eye(p.shape[0]), check_finite=False
-        )
-    except np.linalg.LinAlgError:
-        w, v = np.linalg.eigh(sym)
-        w = np.maximum(w, 1e-12 * w.max())
-        return (v / w) @ v.T
+    if not np.isfinite(sym).all():
+        raise ValueError("covariance with a NaN or infinite entry")
+    inverse = cholesky_solve(sym, _identity(sym.shape[0]))
+    if inverse is not None:
+        return inverse
+    w, v = np.linalg.eigh(sym)
+    w = np.maximum(w, 1e-12 * w.max())
+    return (v / w) @ v.T
 
 
 def _fuse(
@@ -182,15 +193,18 @@ def _fuse(
     if master is not None:
         members.append((master.x, master.signatures, master.P))
     scale = np.sqrt(np.diag(members[0][2]))
+    scale2 = np.outer(scale, scale)
     info = np.zeros((N_COMMON, N_COMMON))
     vector = np.zeros((N_COMMON, 1 + members[0][1].shape[1]))
+    estimates = np.empty_like(vector)
     for x, e, p in members:
-        info_i = _spd_inverse(p / np.outer(scale, scale))
+        info_i = _spd_inverse(p / scale2)
         info += info_i
-        vector += info_i @ (np.column_stack([x, e]) / scale[:, None])
+        estimates[:, 0], estimates[:, 1:] = x, e
+        vector += info_i @ (estimates / scale[:, None])
     p_hat = _spd_inverse(info)
     fused = scale[:, None] * (p_hat @ vector)
-    p_g = p_hat * np.outer(scale, scale)
+    p_g = p_hat * scale2
     return fused[:, 0], 0.5 * (p_g + p_g.T), fused[:, 1:]
 
 
@@ -272,7 +286,7 @@ class FederatedFilter:
     def predict(self, phi: NDArray[np.float64], qd: NDArray[np.float64]) -> None:
         """Time update of every local (common process noise scaled by 1/β_i) and the master."""
         for f in self.locals:
-            f.predict(phi[np.ix_(f.index, f.index)], qd[np.ix_(f.index, f.index)])
+            f.predict(phi[f.block], qd[f.block])
         if self.master is not None:
             self.master.predict(phi[COMMON, COMMON], qd[COMMON, COMMON] / self.options.master_share)
         self._fused = None

@@ -25,6 +25,7 @@ from functools import lru_cache
 
 import numba
 import numpy as np
+import scipy.linalg
 import scipy.stats
 from numpy.typing import NDArray
 
@@ -156,6 +157,21 @@ class KalmanFilter:
         h = np.zeros((1, self.dim))
         h[0, index] = 1.0
         self.update(np.array([value]), h, np.array([[1e-12 * self.P[index, index]]]))
+
+
+def cholesky_solve(a: NDArray[np.float64], b: NDArray[np.float64]) -> NDArray[np.float64] | None:
+    """``a⁻¹ b`` through LAPACK's Cholesky factor and solve (potrf, potrs); None when ``a`` is
+    not positive definite.
+
+    The LAPACK routines are called directly: for the 15×15 covariances of the federated fusion
+    and the smoother, ``scipy.linalg.cho_factor``/``solve``'s argument checks cost 3/4 of the
+    call. ``a`` and ``b`` must be finite (not checked here).
+    """
+    factor, info = scipy.linalg.lapack.dpotrf(a, lower=True, clean=False)
+    if info != 0:
+        return None
+    solution, info = scipy.linalg.lapack.dpotrs(factor, b, lower=True)
+    return np.asarray(solution) if info == 0 else None
 
 
 def whiten(lower: NDArray[np.float64], b: NDArray[np.float64]) -> NDArray[np.float64]:

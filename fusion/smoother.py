@@ -56,9 +56,9 @@ from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
-import scipy.linalg
 from numpy.typing import NDArray
 
+from fusion.kalman import cholesky_solve
 from fusion.rows import RowBuffer
 from fusion.strapdown import NAV_SIZE, remove_errors
 
@@ -213,10 +213,10 @@ class StepStore:
 def _solve_psd(a: NDArray[np.float64], b: NDArray[np.float64]) -> NDArray[np.float64]:
     """``a⁻¹ b`` for a covariance ``a``; a singular one (a state with zero prior and no process
     noise, e.g. a datasheet figure of 0) is solved in the least-squares sense."""
-    try:
-        return scipy.linalg.solve(a, b, assume_a="pos")
-    except np.linalg.LinAlgError:
-        return np.asarray(np.linalg.lstsq(a, b, rcond=None)[0], dtype=np.float64)
+    solution = cholesky_solve(a, b)
+    if solution is not None:
+        return solution
+    return np.asarray(np.linalg.lstsq(a, b, rcond=None)[0], dtype=np.float64)
 
 
 def rts(store: StepStore) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
