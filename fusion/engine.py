@@ -44,6 +44,7 @@ from fusion.filter_bank import CentralizedFilter, FilterBank
 from fusion.imu_gaps import GapBridge, bridge_imu_gaps
 from fusion.jumps import JumpDetector, jump_states
 from fusion.kalman import KalmanFilter, UpdateResult
+from fusion.memory import release_freed_memory
 from fusion.plugin import MeasurementContext, Plugin, create_plugin
 from fusion.recording import ImuSpec, Recording
 from fusion.rows import RowBuffer
@@ -293,6 +294,7 @@ class Engine:
             [b.max_rate_hz for b in self.config.plugins if b.enabled],
             output_times,
         )
+        release_freed_memory()  # the schedule's sort temporaries
         logs = {p.name: InnovationLog() for p in self.plugins}
         out_t, out_nav, out_cov = RowBuffer(), RowBuffer((NAV_SIZE,)), RowBuffer((3, 3))
         out_t.append(t0)

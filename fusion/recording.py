@@ -75,6 +75,7 @@ from pydantic import (
     field_validator,
 )
 
+from fusion.memory import release_freed_memory
 from fusion.validation import describe_error, dotted, short_repr, suggest
 
 __all__ = [
@@ -1466,6 +1467,7 @@ def read_recording(path: str | Path, *, bridge_imu_gaps: bool = False) -> Record
         format.
     """
     recording, problems = _inspect(path, bridge_imu_gaps=bridge_imu_gaps)
+    release_freed_memory()  # the parse's temporaries
     if problems or recording is None:
         raise RecordingError(problems, path)
     return recording
