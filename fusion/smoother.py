@@ -219,24 +219,22 @@ def _solve_psd(a: NDArray[np.float64], b: NDArray[np.float64]) -> NDArray[np.flo
     return np.asarray(np.linalg.lstsq(a, b, rcond=None)[0], dtype=np.float64)
 
 
-def rts(store: StepStore) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-    """Smoothed errors d_j = ê_j − u_j of the fed-back state, and P_j^s, at the output epochs.
+def rts(store: StepStore) -> Iterator[tuple[int, NDArray[np.float64], NDArray[np.float64]]]:
+    """Smoothed errors d_j = ê_j − u_j of the fed-back state, and P_j^s, at the output epochs:
+    ``(j, d_j, P_j^s)``, last epoch first.
 
     The recursion starts at the window's last step (where the smoothed estimate is the filtered
-    one) and walks the folded rows back to the first output epoch.
+    one) and walks the folded rows back to the first output epoch. Yielded one at a time, so a
+    caller that keeps only the position block never holds every P_j^s of a pass.
     """
     store.close_segment()
-    d_out = np.empty((store.n_rows, store.dim))
-    p_out = np.empty((store.n_rows, store.dim, store.dim))
     e, p = store.last_posterior
     for j, row in store.backward():
         g = row["gain"]
         e = row["offset"] + g @ e
         p = row["covariance"] + g @ p @ g.T
         p = 0.5 * (p + p.T)
-        d_out[j] = e - row["feedback"]
-        p_out[j] = p
-    return d_out, p_out
+        yield j, e - row["feedback"], p
 
 
 class WindowedSmoother:
@@ -297,13 +295,15 @@ class WindowedSmoother:
         self.peak_steps = max(self.peak_steps, store.n)
         self.spilled |= store.spilled
         if len(store.t):
-            d, p_s = rts(store)
-            times = np.asarray(store.t)
-            for t, smoothed, dk, pk in zip(times, self._navs.to_array(), d, p_s, strict=True):
-                remove_errors(smoothed, dk[0:3], dk[3:6], dk[6:9])
+            navs = self._navs.to_array()
+            covariances = np.empty((len(navs), 3, 3))
+            for j, d, p in rts(store):
+                remove_errors(navs[j], d[0:3], d[3:6], d[6:9])
+                covariances[j] = p[6:9, 6:9]
+            for t, nav, covariance in zip(store.t, navs, covariances, strict=True):
                 self.t.append(t)
-                self.nav.append(smoothed)
-                self.covariance.append(pk[6:9, 6:9])
+                self.nav.append(nav)
+                self.covariance.append(covariance)
         store.close()
         self.store = StepStore(self.dim, self.budget)
         self._navs = RowBuffer((NAV_SIZE,))

@@ -62,7 +62,8 @@ def test_closed_loop_smoother_equals_open_loop_rts(
         store.append(0.1 * k, f, prior, posterior, u, output=output)
         if output:
             nominal_after.append(nominal.copy())
-    d, p_s = rts(store)
+    rows = sorted(rts(store), key=lambda row: row[0])
+    d, p_s = np.array([row[1] for row in rows]), np.array([row[2] for row in rows])
     assert store.spilled == (budget_mb == 0.0)
     store.close()
     smoothed = np.array(nominal_after) - d
