@@ -354,11 +354,11 @@ class Engine:
             if progress is not None and (i // report_every) != (j // report_every):
                 progress(j / n_events)
             i = j
-        solution = self._solution(out_t.to_array(), out_nav.to_array(), out_cov.to_array())
+        solution = self._solution(out_t.take(), out_nav.take(), out_cov.take())
         smoothed = None
         if smoother is not None:
             smoother.close_window()
-            smoothed = self._solution(*smoother.rows())
+            smoothed = self._solution(*smoother.take_rows())
         final, final_covariance = bank.estimate()
         final[self.layout.slice("gyro_bias")] += sins.gyro_bias
         final[self.layout.slice("accel_bias")] += sins.accel_bias

@@ -38,6 +38,12 @@ class RowBuffer:
     def __len__(self) -> int:
         return len(self._data) // max(self._size, 1)
 
+    def take(self) -> NDArray[np.float64]:
+        """All rows as an ``(n, *shape)`` array without a copy (it shares the buffer's memory);
+        the buffer is left empty."""
+        data, self._data = self._data, array("d")
+        return np.frombuffer(data, dtype=np.float64).reshape(-1, *self.shape)
+
     def to_array(self, first: int = 0) -> NDArray[np.float64]:
         """A copy of the rows from ``first`` on as an ``(n, *shape)`` array."""
         rows = np.frombuffer(self._data, dtype=np.float64).reshape(-1, *self.shape)

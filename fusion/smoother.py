@@ -309,6 +309,10 @@ class WindowedSmoother:
         self._navs = RowBuffer((NAV_SIZE,))
         return self.rows(first)
 
+    def take_rows(self) -> Rows:
+        """All smoothed rows, without a copy; the smoother's row buffers are left empty."""
+        return self.t.take(), self.nav.take(), self.covariance.take()
+
     def rows(self, first: int = 0) -> Rows:
         """Times, smoothed navigation states and position covariances of the rows from
         ``first`` on (default: all)."""
