@@ -229,9 +229,9 @@ class FaultMonitor:
         opts = self.options
         if not opts.enabled:
             return None
-        reference = self._references.setdefault(
-            source, _Reference(REFERENCE_WINDOWS * opts.window_s)
-        )
+        reference = self._references.get(source)
+        if reference is None:
+            reference = self._references[source] = _Reference(REFERENCE_WINDOWS * opts.window_s)
         raw_mean = self._window_mean(t, source, whitened)
         mean_statistic, mean_threshold = 0.0, np.inf
         if reference.armed(opts.window_s) and raw_mean is not None and whitened is not None:

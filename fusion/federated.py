@@ -174,8 +174,6 @@ def _spd_inverse(p: NDArray[np.float64]) -> NDArray[np.float64]:
     """Inverse of a (scaled) covariance; if rounding has made it indefinite, the inverse of its
     nearest positive definite matrix (eigenvalues floored at 1e-12 of the largest)."""
     sym = 0.5 * (p + p.T)
-    if not np.isfinite(sym).all():
-        raise ValueError("covariance with a NaN or infinite entry")
     inverse = cholesky_solve(sym, _identity(sym.shape[0]))
     if inverse is not None:
         return inverse

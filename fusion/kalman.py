@@ -165,8 +165,15 @@ def cholesky_solve(a: NDArray[np.float64], b: NDArray[np.float64]) -> NDArray[np
 
     The LAPACK routines are called directly: for the 15×15 covariances of the federated fusion
     and the smoother, ``scipy.linalg.cho_factor``/``solve``'s argument checks cost 3/4 of the
-    call. ``a`` and ``b`` must be finite (not checked here).
+    call. Only finiteness is checked (LAPACK would carry a NaN through silently).
+
+    Raises
+    ------
+    ValueError
+        When ``a`` has a NaN or infinite entry.
     """
+    if not np.isfinite(a).all():
+        raise ValueError("covariance with a NaN or infinite entry")
     factor, info = scipy.linalg.lapack.dpotrf(a, lower=True, clean=False)
     if info != 0:
         return None

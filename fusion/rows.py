@@ -35,6 +35,13 @@ class RowBuffer:
             raise ValueError(f"row of shape {values.shape}, expected {self.shape}")
         self._data.extend(values.ravel())
 
+    def extend(self, rows: ArrayLike) -> None:
+        """Append rows (anything of shape ``(n, *shape)``)."""
+        values = np.asarray(rows, dtype=np.float64)
+        if values.shape[1:] != self.shape:
+            raise ValueError(f"rows of shape {values.shape}, expected (n, *{self.shape})")
+        self._data.frombytes(np.ascontiguousarray(values).tobytes())
+
     def __len__(self) -> int:
         return len(self._data) // max(self._size, 1)
 

@@ -295,18 +295,16 @@ class WindowedSmoother:
         self.peak_steps = max(self.peak_steps, store.n)
         self.spilled |= store.spilled
         if len(store.t):
-            navs = self._navs.to_array()
+            navs = self._navs.take()
             covariances = np.empty((len(navs), 3, 3))
             for j, d, p in rts(store):
                 remove_errors(navs[j], d[0:3], d[3:6], d[6:9])
                 covariances[j] = p[6:9, 6:9]
-            for t, nav, covariance in zip(store.t, navs, covariances, strict=True):
-                self.t.append(t)
-                self.nav.append(nav)
-                self.covariance.append(covariance)
+            self.t.extend(store.t)
+            self.nav.extend(navs)
+            self.covariance.extend(covariances)
         store.close()
         self.store = StepStore(self.dim, self.budget)
-        self._navs = RowBuffer((NAV_SIZE,))
         return self.rows(first)
 
     def take_rows(self) -> Rows:
