@@ -359,8 +359,8 @@ def score_faults(
             for b in blocks:
                 log = result.innovations.get(b.instance_name)
                 if b.type == sensor and log is not None:
-                    t = np.asarray(log.t)
-                    rejected = t[(~np.asarray(log.accepted, bool)) & (t >= t0) & (t <= t1)]
+                    t = log.t
+                    rejected = t[~log.accepted & (t >= t0) & (t <= t1)]
                     times.extend(rejected[:1].tolist())
         if times:
             delays.append(min(times) - t0)
@@ -389,8 +389,7 @@ def _trace(
     events = [(e.t, e.local, e.action) for e in result.faults if e.action in (ISOLATE, READMIT)]
     rejections: dict[str, NDArray[np.float64]] = {}
     for name, log in result.innovations.items():
-        t = np.asarray(log.t)
-        rejections[name] = t[~np.asarray(log.accepted, bool)]
+        rejections[name] = log.t[~log.accepted]
     return Trace(
         group=task.group,
         method=label,

@@ -19,9 +19,8 @@ from __future__ import annotations
 
 import logging
 import time
-from array import array
 from collections.abc import Callable
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, replace
 
 import numpy as np
 from numpy.typing import NDArray
@@ -42,8 +41,9 @@ from fusion.fault_detection import FaultEvent
 from fusion.federated import FederatedFilter
 from fusion.filter_bank import CentralizedFilter, FilterBank
 from fusion.imu_gaps import GapBridge, bridge_imu_gaps
+from fusion.innovations import InnovationLog
 from fusion.jumps import JumpDetector, jump_states
-from fusion.kalman import KalmanFilter, UpdateResult
+from fusion.kalman import KalmanFilter
 from fusion.memory import release_freed_memory
 from fusion.plugin import MeasurementContext, Plugin, create_plugin
 from fusion.recording import ImuSpec, Recording
@@ -55,39 +55,6 @@ from fusion.strapdown import HGT, LAT, LON, NAV_SIZE, Q0, VEL, NavState, Strapdo
 _log = logging.getLogger(__name__)
 ProgressCallback = Callable[[float], None]
 GRID, OUTPUT = -1, -2
-
-
-@dataclass
-class InnovationLog:
-    """Per-plugin record of every measurement epoch that produced a measurement.
-
-    Compact typed arrays (an 8-hour run logs millions of updates): ``t``, ``nis`` (float),
-    ``dof`` (int), ``accepted`` and ``suspect`` (0/1), and ``whitened``, the whitened innovation
-    components of all updates concatenated (``dof[k]`` of them for update k).
-    """
-
-    t: array = field(default_factory=lambda: array("d"))
-    nis: array = field(default_factory=lambda: array("d"))
-    dof: array = field(default_factory=lambda: array("i"))
-    accepted: array = field(default_factory=lambda: array("b"))
-    suspect: array = field(default_factory=lambda: array("b"))
-    whitened: array = field(default_factory=lambda: array("d"))
-
-    def append(self, t: float, result: UpdateResult, suspect: bool) -> None:
-        """Log one update."""
-        self.t.append(t)
-        self.nis.append(result.nis)
-        self.dof.append(result.dof)
-        self.accepted.append(result.accepted)
-        self.suspect.append(suspect)
-        self.whitened.extend(result.whitened)
-
-    def whitened_rms(self) -> float:
-        """RMS of all accepted whitened innovation components (≈ 1 when consistent)."""
-        accepted = np.repeat(np.asarray(self.accepted, dtype=bool), np.asarray(self.dof))
-        if not accepted.any():
-            return float("nan")
-        return float(np.sqrt(np.mean(np.square(np.asarray(self.whitened)[accepted]))))
 
 
 @dataclass

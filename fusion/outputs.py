@@ -68,10 +68,8 @@ def summary(result: RunResult, recording: Recording) -> str:
         f"final σ    e/n/u {np.array2string(sol.sigma_position[-1], precision=3)} m",
     ]
     for name, log in result.innovations.items():
-        n = len(log.t)
-        rejected = n - int(np.sum(log.accepted))
         lines.append(
-            f"plugin     {name}: {n} updates, {rejected} rejected, "
+            f"plugin     {name}: {log.count} updates, {log.rejected} rejected, "
             f"whitened-innovation RMS {log.whitened_rms():.2f}"
         )
     actions = [e.action for e in result.faults]

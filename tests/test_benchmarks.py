@@ -162,7 +162,7 @@ def test_fault_scoring_federated_delay_and_false_alarms():
 def test_fault_scoring_centralized_uses_gate_rejections():
     injected = [{"type": "odometer_slip", "t_start": 100.0, "t_end": 160.0}]
     log = SimpleNamespace(
-        t=np.array([90.0, 101.0, 104.0, 130.0]), accepted=np.array([0, 1, 0, 0], dtype=np.int8)
+        t=np.array([90.0, 101.0, 104.0, 130.0]), accepted=np.array([0, 1, 0, 0], dtype=bool)
     )
     result = _fake_result("centralized", [{"type": "odometer"}], innovations={"odometer": log})
     fields = score_faults(injected, result)
