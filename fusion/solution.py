@@ -115,10 +115,13 @@ def write_solution(solution: Solution, path: str | Path) -> None:
     """
     s = solution
     columns = [s.t, *s.position.T, *s.velocity.T, *s.attitude.T, *s.sigma_position.T]
-    table = np.column_stack(columns) if len(s) else np.empty((0, len(SOLUTION_COLUMNS)))
     rep = _Reporter(Path(path).name)
     lines = np.arange(2, len(s) + 2, dtype=np.int64)
-    rows, cols = np.nonzero(~np.isfinite(table))
+    bad = [np.flatnonzero(~np.isfinite(c)) for c in columns]  # column by column: no table copy
+    rows = np.concatenate(bad)
+    cols = np.repeat(np.arange(len(columns)), [b.size for b in bad])
+    order = np.lexsort((cols, rows))
+    rows, cols = rows[order], cols[order]
     rep.add_many(
         "nonfinite",
         rows.size,

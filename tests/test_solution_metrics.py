@@ -99,8 +99,12 @@ def test_read_solution_header_and_missing(tmp_path: Path) -> None:
 def test_write_solution_refuses_nan(tmp_path: Path) -> None:
     sol = make_solution(4)
     sol.position[2, 1] = np.nan
-    with pytest.raises(RecordingError, match="line 4, column n"):
+    sol.position[2, 0] = np.inf
+    sol.velocity[1, 2] = np.nan
+    with pytest.raises(RecordingError) as err:
         write_solution(sol, tmp_path / "solution.csv")
+    wheres = [p.where for p in err.value.problems]
+    assert wheres == ["line 3, column vu", "line 4, column e", "line 4, column n"]
 
 
 def test_solution_shapes_checked() -> None:
