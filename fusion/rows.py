@@ -50,8 +50,3 @@ class RowBuffer:
         the buffer is left empty."""
         data, self._data = self._data, array("d")
         return np.frombuffer(data, dtype=np.float64).reshape(-1, *self.shape)
-
-    def to_array(self, first: int = 0) -> NDArray[np.float64]:
-        """A copy of the rows from ``first`` on as an ``(n, *shape)`` array."""
-        rows = np.frombuffer(self._data, dtype=np.float64).reshape(-1, *self.shape)
-        return rows[first:].copy()

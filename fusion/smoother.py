@@ -289,29 +289,24 @@ class WindowedSmoother:
 
     def close_window(self) -> Rows:
         """Smooth the stored window, keep its output rows, start an empty window; return the
-        window's rows."""
-        first = len(self.t)
+        window's rows (times, smoothed navigation states, position covariances)."""
         store = self.store
         self.peak_steps = max(self.peak_steps, store.n)
         self.spilled |= store.spilled
-        if len(store.t):
-            navs = self._navs.take()
-            covariances = np.empty((len(navs), 3, 3))
+        times = np.array(store.t)
+        navs = self._navs.take()
+        covariances = np.empty((len(navs), 3, 3))
+        if times.size:
             for j, d, p in rts(store):
                 remove_errors(navs[j], d[0:3], d[3:6], d[6:9])
                 covariances[j] = p[6:9, 6:9]
-            self.t.extend(store.t)
-            self.nav.extend(navs)
-            self.covariance.extend(covariances)
+        self.t.extend(times)
+        self.nav.extend(navs)
+        self.covariance.extend(covariances)
         store.close()
         self.store = StepStore(self.dim, self.budget)
-        return self.rows(first)
+        return times, navs, covariances
 
     def take_rows(self) -> Rows:
         """All smoothed rows, without a copy; the smoother's row buffers are left empty."""
         return self.t.take(), self.nav.take(), self.covariance.take()
-
-    def rows(self, first: int = 0) -> Rows:
-        """Times, smoothed navigation states and position covariances of the rows from
-        ``first`` on (default: all)."""
-        return self.t.to_array(first), self.nav.to_array(first), self.covariance.to_array(first)
