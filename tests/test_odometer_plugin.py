@@ -1,5 +1,5 @@
 """Odometer + motion constraint: H against numerical differentiation of the nonlinear model,
-ZARU at encoder standstills, the scale error under cutting vibration."""
+ZARU at encoder standstills, the scale error under cutting vibration, Monte Carlo consistency."""
 
 from __future__ import annotations
 
@@ -18,8 +18,10 @@ from fusion.sim.scenario import load_scenario
 from fusion.sim.simulate import simulate
 from plugins.odometer import Odometer, OdometerOptions
 from tests.plugin_support import (
+    MTI_G_700_TUNING,
     SEED002_SPEC,
     layout_with,
+    normalized_errors,
     perturbed_context,
     recording_meta,
     static_recording,
@@ -161,3 +163,54 @@ def test_motion_constraint_survives_a_long_standstill(tmp_path: Path) -> None:
         rms[name] = compute_metrics(result.solution, rec.truth)["horizontal_rms"]
     print({n: round(v, 2) for n, v in rms.items()})
     assert rms["sins_mc"] < 0.05 * rms["sins_only"]
+
+
+N_SEEDS = 20
+SHORT_RUN = ["static_start_s=30", "duration_s=300"]
+
+
+@pytest.mark.slow
+def test_monte_carlo_consistency(tmp_path: Path) -> None:
+    """SINS + odometer alone (configs/sins_od_ckf.yaml's plugin) over 20 seeded 300-s runs of
+    ``longwall-200m``, with the IMU's in-run bias instability modelled as in sins_uwb.yaml:
+    RMS(err/σ) < 1.5 for velocity, attitude and position, and the odometer holds the position
+    where the free SINS drifts away (seed 000's direction of improvement).
+
+    Without the instability (the shipped sins_od_ckf.yaml models constant biases) the tilt
+    ratios are 4.3 over 3 of these seeds: the filter believes its accelerometer bias constant.
+    The whitened odometer innovations are printed, not asserted: their RMS is ≈ 0.4, the
+    speed/lateral/vertical σ of 1 cm/s being conservative against the simulated 2 mm/s; a
+    tighter fixed σ (3 mm/s) or an adaptive one worsened the position (0.23 → 0.55 m) and the
+    adaptive one drove the yaw to 11σ (see the closing note of 2026-11-22)."""
+    data = load_config(CONFIGS / "sins_od_ckf.yaml").model_dump()
+    data["imu"] = MTI_G_700_TUNING
+    config = parse_config(data)
+    free = load_config(CONFIGS / "sins_only.yaml")
+    ratios, whitened, aided, unaided = [], [], [], []
+    for seed in range(N_SEEDS):
+        rec = read_recording(
+            simulate("longwall-200m", tmp_path / f"seed{seed}", seed=seed, overrides=SHORT_RUN)
+        )
+        assert rec.truth is not None
+        result, r = normalized_errors(config, rec, lambda index, _: index % 10 == 0)
+        ratios.append(r)
+        whitened.append(result.innovations["odometer"].whitened_rms())
+        aided.append(compute_metrics(result.solution, rec.truth)["horizontal_rms"])
+        unaided.append(
+            compute_metrics(Engine(free, rec).run().solution, rec.truth)["horizontal_rms"]
+        )
+    r = np.concatenate(ratios)
+    rms = {
+        group: float(np.sqrt(np.mean(r[:, rows] ** 2)))
+        for group, rows in (
+            ("velocity", slice(0, 3)),
+            ("attitude", slice(3, 6)),
+            ("position", slice(6, 9)),
+        )
+    }
+    print("whitened RMS per run:", np.round(whitened, 3))
+    print("RMS(err/σ):", {g: round(v, 3) for g, v in rms.items()})
+    print(f"horizontal RMS: {np.mean(aided):.3f} m aided, {np.mean(unaided):.0f} m free")
+    for group, value in rms.items():
+        assert value < 1.5, (group, value)
+    assert max(aided) < 1e-3 * min(unaided)

@@ -34,6 +34,7 @@ from fusion.solution import Solution
 from plugins.uwb import LeastSquaresOptions, UwbOptions, UwbRanges, least_squares_solution
 from tests.plugin_support import (
     FRAME,
+    MTI_G_700_TUNING,
     layout_with,
     normalized_errors,
     numerical_jacobian,
@@ -45,12 +46,6 @@ from tests.plugin_support import (
 ROOT = Path(__file__).resolve().parents[1]
 SIGMA_RANGE = 0.03
 """Ranging noise of the seed004-face-end scenario (its ``uwb.noise_sigma_m``)."""
-IMU_TUNING = {  # configs/sins_uwb.yaml's: the MTi-G-700's in-run instability as a random walk
-    "gyro_bias_instability_deg_h": 16.2,
-    "accel_bias_instability_mg": 0.065,
-    "bias_correlation_time_s": 100.0,
-    "bias_model": "random_walk",
-}
 FACE_LENGTH = 2.0
 # seed004-face-end's anchors (face coordinates: along, right, height) for its 10 m face; the
 # short runs keep their position relative to the face end.
@@ -259,7 +254,7 @@ def _short_run(root: Path, seed: int, extra: tuple[str, ...] = ()) -> Recording:
 
 def _config(**plugin: Any) -> Any:
     block = {"type": "uwb", "sigma_range_m": SIGMA_RANGE, **plugin}
-    return parse_config({"name": "sins_uwb_test", "imu": IMU_TUNING, "plugins": [block]})
+    return parse_config({"name": "sins_uwb_test", "imu": MTI_G_700_TUNING, "plugins": [block]})
 
 
 def _errors(solution: Solution, recording: Recording) -> tuple[np.ndarray, np.ndarray]:
