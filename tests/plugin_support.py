@@ -134,6 +134,13 @@ def numerical_jacobian(
     return np.stack(columns, axis=-1)
 
 
+def group_rms(ratios: NDArray[np.float64]) -> dict[str, float]:
+    """RMS of err/σ rows (velocity, attitude, position: 9 columns, as :func:`normalized_errors`
+    returns them) per state group."""
+    groups = {"velocity": slice(0, 3), "attitude": slice(3, 6), "position": slice(6, 9)}
+    return {g: float(np.sqrt(np.mean(ratios[:, cols] ** 2))) for g, cols in groups.items()}
+
+
 def normalized_errors(
     config: FusionConfig,
     recording: Recording,

@@ -13,6 +13,7 @@ from fusion.attitude import dcm_from_euler, dcm_from_quat, quat_from_rotvec, qua
 from fusion.earth import LocalFrame
 from fusion.error_model import ErrorModel, ImuNoise, StateLayout, common_blocks, navigation_error
 from fusion.strapdown import HGT, LAT, LON, Q0, VEL, NavState, mechanize
+from tests.plugin_support import group_rms
 
 RATE = 100.0
 DURATION = 600.0
@@ -76,11 +77,7 @@ def test_monte_carlo_errors_match_predicted_sigma() -> None:
             )
             ratios.append(navigation_error(nav, truth_nav) / sigma[k])
     r = np.array(ratios)
-    rms = {
-        "velocity": float(np.sqrt(np.mean(r[:, 0:3] ** 2))),
-        "attitude": float(np.sqrt(np.mean(r[:, 3:6] ** 2))),
-        "position": float(np.sqrt(np.mean(r[:, 6:9] ** 2))),
-    }
+    rms = group_rms(r)
     per_axis = np.sqrt(np.mean(r**2, axis=0))
     print("RMS(err/σ):", rms, "per state:", np.round(per_axis, 2))
     assert np.allclose(dcm_from_quat(truth.quaternion), c_b_n)

@@ -30,6 +30,7 @@ from fusion.recording import MagnetometerData, Recording, read_recording
 from fusion.sim.simulate import simulate
 from plugins.magnetometer import Magnetometer, MagnetometerOptions
 from tests.plugin_support import (
+    group_rms,
     layout_with,
     normalized_errors,
     numerical_jacobian,
@@ -284,11 +285,7 @@ def test_magnetometer_runs_are_consistent(monte_carlo: dict[str, Any]) -> None:
     position, velocity and attitude over the 20 runs; no indicator flag on clean data."""
     whitened = np.array(monte_carlo["whitened"])
     r = np.concatenate(monte_carlo["ratios"])
-    rms = {
-        "velocity": float(np.sqrt(np.mean(r[:, 0:3] ** 2))),
-        "attitude": float(np.sqrt(np.mean(r[:, 3:6] ** 2))),
-        "position": float(np.sqrt(np.mean(r[:, 6:9] ** 2))),
-    }
+    rms = group_rms(r)
     print(f"magnetometer whitened RMS {whitened.min():.3f}..{whitened.max():.3f}")
     print("RMS(err/σ):", {g: round(v, 3) for g, v in rms.items()})
     print("per state:", np.round(np.sqrt(np.mean(r**2, axis=0)), 2))

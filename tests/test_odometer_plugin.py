@@ -20,6 +20,7 @@ from plugins.odometer import Odometer, OdometerOptions
 from tests.plugin_support import (
     MTI_G_700_TUNING,
     SEED002_SPEC,
+    group_rms,
     layout_with,
     normalized_errors,
     perturbed_context,
@@ -200,14 +201,7 @@ def test_monte_carlo_consistency(tmp_path: Path) -> None:
             compute_metrics(Engine(free, rec).run().solution, rec.truth)["horizontal_rms"]
         )
     r = np.concatenate(ratios)
-    rms = {
-        group: float(np.sqrt(np.mean(r[:, rows] ** 2)))
-        for group, rows in (
-            ("velocity", slice(0, 3)),
-            ("attitude", slice(3, 6)),
-            ("position", slice(6, 9)),
-        )
-    }
+    rms = group_rms(r)
     print("whitened RMS per run:", np.round(whitened, 3))
     print("RMS(err/σ):", {g: round(v, 3) for g, v in rms.items()})
     print(f"horizontal RMS: {np.mean(aided):.3f} m aided, {np.mean(unaided):.0f} m free")

@@ -35,6 +35,7 @@ from plugins.uwb import LeastSquaresOptions, UwbOptions, UwbRanges, least_square
 from tests.plugin_support import (
     FRAME,
     MTI_G_700_TUNING,
+    group_rms,
     layout_with,
     normalized_errors,
     numerical_jacobian,
@@ -303,8 +304,7 @@ def test_monte_carlo_consistency(monte_carlo: dict[str, Any]) -> None:
     """Whitened innovations RMS in [0.7, 1.3] per run; RMS(err/σ) < 1.5 per state group."""
     whitened = monte_carlo["whitened"]
     r = monte_carlo["ratios"]
-    groups = {"velocity": r[:, 0:3], "attitude": r[:, 3:6], "position": r[:, 6:9]}
-    rms = {g: float(np.sqrt(np.mean(v**2))) for g, v in groups.items()}
+    rms = group_rms(r)
     print("whitened RMS per run:", np.round(whitened, 3))
     print("RMS(err/σ):", {g: round(v, 3) for g, v in rms.items()})
     print("per state:", np.round(np.sqrt(np.mean(r**2, axis=0)), 2))

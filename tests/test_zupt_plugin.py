@@ -29,6 +29,7 @@ from fusion.sim.simulate import simulate
 from plugins.zupt import Zupt, default_thresholds, detect_stationary, window_samples
 from tests.plugin_support import (
     SEED002_SPEC,
+    group_rms,
     layout_with,
     normalized_errors,
     numerical_jacobian,
@@ -363,14 +364,7 @@ def test_monte_carlo_consistency_and_improvement(tmp_path_factory: pytest.TempPa
     print("mean horizontal RMS (m):", {n: round(v, 3) for n, v in mean_error.items()})
     for name in ratios:
         r = np.concatenate(ratios[name])
-        groups = {
-            g: float(np.sqrt(np.mean(r[:, s] ** 2)))
-            for g, s in (
-                ("velocity", slice(0, 3)),
-                ("attitude", slice(3, 6)),
-                ("position", slice(6, 9)),
-            )
-        }
+        groups = group_rms(r)
         w = float(np.sqrt(nis_dof[name][0] / nis_dof[name][1]))
         print(
             f"{name}: whitened RMS {w:.3f} ({rejected[name]} gated), RMS(err/σ)"
