@@ -29,7 +29,7 @@ from fusion.plugin import Measurement, MeasurementContext
 from fusion.recording import ImuData, Recording, RecordingMeta
 
 FRAME = LocalFrame(34.0, 117.0, 40.0)
-MTI_G_700_TUNING = {  # configs/sins_uwb.yaml's: the MTi-G-700's in-run instability, random walk
+MTI_G_700_TUNING = {  # the imu block of configs/sins_uwb.yaml and the sins_od_* configs
     "gyro_bias_instability_deg_h": 16.2,
     "accel_bias_instability_mg": 0.065,
     "bias_correlation_time_s": 100.0,

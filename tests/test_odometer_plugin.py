@@ -18,7 +18,6 @@ from fusion.sim.scenario import load_scenario
 from fusion.sim.simulate import simulate
 from plugins.odometer import Odometer, OdometerOptions
 from tests.plugin_support import (
-    MTI_G_700_TUNING,
     SEED002_SPEC,
     group_rms,
     layout_with,
@@ -172,20 +171,18 @@ SHORT_RUN = ["static_start_s=30", "duration_s=300"]
 
 @pytest.mark.slow
 def test_monte_carlo_consistency(tmp_path: Path) -> None:
-    """SINS + odometer alone (configs/sins_od_ckf.yaml's plugin) over 20 seeded 300-s runs of
-    ``longwall-200m``, with the IMU's in-run bias instability modelled as in sins_uwb.yaml:
-    RMS(err/σ) < 1.5 for velocity, attitude and position, and the odometer holds the position
-    where the free SINS drifts away (seed 000's direction of improvement).
+    """SINS + odometer alone (configs/sins_od_ckf.yaml, which models the MTi's in-run bias
+    instability) over 20 seeded 300-s runs of ``longwall-200m``: RMS(err/σ) < 1.5 for velocity,
+    attitude and position, and the odometer holds the position where the free SINS drifts away
+    (seed 000's direction of improvement).
 
-    Without the instability (the shipped sins_od_ckf.yaml models constant biases) the tilt
-    ratios are 4.3 over 3 of these seeds: the filter believes its accelerometer bias constant.
+    With constant biases instead (the configuration before 2026-11-22) the tilt ratios were 4.3
+    over 3 of these seeds: the filter believed its accelerometer bias constant.
     The whitened odometer innovations are printed, not asserted: their RMS is ≈ 0.4, the
     speed/lateral/vertical σ of 1 cm/s being conservative against the simulated 2 mm/s; a
     tighter fixed σ (3 mm/s) or an adaptive one worsened the position (0.23 → 0.55 m) and the
     adaptive one drove the yaw to 11σ (see the closing note of 2026-11-22)."""
-    data = load_config(CONFIGS / "sins_od_ckf.yaml").model_dump()
-    data["imu"] = MTI_G_700_TUNING
-    config = parse_config(data)
+    config = load_config(CONFIGS / "sins_od_ckf.yaml")
     free = load_config(CONFIGS / "sins_only.yaml")
     ratios, whitened, aided, unaided = [], [], [], []
     for seed in range(N_SEEDS):
