@@ -154,8 +154,10 @@ def seed000_tables() -> list[TableSpec]:
         paper=paper,
         headline="sep_c4",
         note="the paper's 'proposed method' is the forward filter with RTS smoothing; the"
-        " compensated dead reckoning uses the forward filter's mounting angles (δα_x, δα_z),"
-        " odometer scale error and gyro bias",
+        " compensated dead reckoning uses the forward filter's final mounting angles (δα_x,"
+        " δα_z), odometer scale error and gyro bias; the filter models the IMU's in-run bias"
+        " instability, so that gyro bias is the one at the run's end, which the dead reckoning"
+        " holds for the whole run",
     )
     delta_rows = []
     for d in DELTAS_M:
