@@ -44,12 +44,11 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import yaml
 from numpy.typing import NDArray
 
 from benchmarks.faults import plan_fault
 from fusion.attitude import dcm_from_quat, euler_from_dcm, quat_from_rotvec, wrap_angle
-from fusion.config import ConfigError, FusionConfig, find_config, parse_config
+from fusion.config import ConfigError, FusionConfig, find_config, load_config_data, parse_config
 from fusion.engine import Engine, RunResult
 from fusion.fault_detection import ISOLATE, READMIT
 from fusion.metrics import compute_metrics, interpolate_truth
@@ -242,7 +241,7 @@ def load_method_config(method: Method, extra: Sequence[str] = ()) -> FusionConfi
     path = find_config(method.config)
     if not path.exists():
         return None
-    data = yaml.safe_load(path.read_text(encoding="utf-8"))
+    data = load_config_data(path)
     return parse_config(override_config(data, [*method.overrides, *extra]), str(path))
 
 

@@ -5,6 +5,10 @@ A configuration names the IMU tuning (defaults: the datasheet figures in the rec
 options and rejection gate, robot_localization style) and the outputs. Every model forbids
 unknown keys, so a typo is an error that names its path (``filter.covariance_stp_s``) and the
 nearest valid key.
+
+An IMU's tuning shared by several configurations lives in its own YAML file, named by
+``imu: {file: imu/NAME.yaml}`` (relative to the configuration's directory); keys given beside
+``file`` override the file's.
 """
 
 from __future__ import annotations
@@ -239,15 +243,42 @@ def find_config(name_or_path: str | Path) -> Path:
 
 def load_config(path: str | Path) -> FusionConfig:
     """Read and validate a YAML configuration file."""
+    return parse_config(load_config_data(path), str(path))
+
+
+def load_config_data(path: str | Path) -> Any:
+    """A configuration file's YAML before validation, with its ``imu.file`` read in (for
+    callers that edit the mapping, e.g. with overrides, before :func:`parse_config`)."""
     path = Path(path)
+    data = _read_yaml(path)
+    if isinstance(data, dict) and isinstance(data.get("imu"), dict) and "file" in data["imu"]:
+        data["imu"] = _imu_from_file(data["imu"], path)
+    return data
+
+
+def _read_yaml(path: Path) -> Any:
     try:
         text = path.read_text(encoding="utf-8")
     except OSError as exc:
         raise ConfigError(f"{path}: cannot read the configuration ({exc.strerror})") from None
     try:
-        data = yaml.safe_load(text)
+        return yaml.safe_load(text)
     except yaml.YAMLError as exc:
         mark = getattr(exc, "problem_mark", None)
         where = f", line {mark.line + 1}" if mark is not None else ""
         raise ConfigError(f"{path}{where}: not valid YAML ({exc})") from None
-    return parse_config(data, str(path))
+
+
+def _imu_from_file(block: dict[str, Any], config: Path) -> dict[str, Any]:
+    """The ``imu`` block with its ``file`` (relative to ``config``'s directory) read in; the
+    block's other keys override the file's."""
+    rest = dict(block)
+    name = rest.pop("file")
+    if not isinstance(name, str):
+        raise ConfigError(f"{config}: config key imu.file must be a path to a YAML file")
+    shared = _read_yaml(config.parent / name)
+    if not isinstance(shared, dict) or "file" in shared:
+        raise ConfigError(
+            f"{config}: imu.file {name!r} must hold a mapping of imu keys (and no file key)"
+        )
+    return {**shared, **rest}

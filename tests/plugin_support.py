@@ -29,12 +29,6 @@ from fusion.plugin import Measurement, MeasurementContext
 from fusion.recording import ImuData, Recording, RecordingMeta
 
 FRAME = LocalFrame(34.0, 117.0, 40.0)
-MTI_G_700_TUNING = {  # the imu block of configs/sins_uwb.yaml and the sins_od_* configs
-    "gyro_bias_instability_deg_h": 16.2,
-    "accel_bias_instability_mg": 0.065,
-    "bias_correlation_time_s": 100.0,
-    "bias_model": "random_walk",
-}
 SEED002_SPEC = {  # seed 002 Table 1, as the simulator's "seed002-mems" grade writes it to meta.yaml
     "gyro_bias_deg_h": 3.0,
     "gyro_arw_deg_rth": 0.0433,

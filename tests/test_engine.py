@@ -179,6 +179,22 @@ def test_misspelled_config_key_is_named_with_a_suggestion(tmp_path: Path) -> Non
     assert "unknown key" in msg and "covariance_step_s" in msg
 
 
+def test_imu_file_is_read_relative_to_the_config_and_overridden_beside_it(tmp_path: Path) -> None:
+    (tmp_path / "imu").mkdir()
+    (tmp_path / "imu" / "grade.yaml").write_text("gyro_arw_deg_rth: 0.6\nnoise_scale: 2.0\n")
+    path = tmp_path / "c.yaml"
+    path.write_text("name: x\nimu: {file: imu/grade.yaml, noise_scale: 5.0}\n")
+    imu = load_config(path).imu
+    assert (imu.gyro_arw_deg_rth, imu.noise_scale) == (0.6, 5.0)
+    path.write_text("name: x\nimu: {file: imu/none.yaml}\n")
+    with pytest.raises(ConfigError, match=r"none\.yaml: cannot read"):
+        load_config(path)
+    (tmp_path / "imu" / "grade.yaml").write_text("- 1\n")
+    path.write_text("name: x\nimu: {file: imu/grade.yaml}\n")
+    with pytest.raises(ConfigError, match=r"c\.yaml: imu\.file .imu/grade\.yaml. must hold"):
+        load_config(path)
+
+
 def test_missing_imu_figures_are_an_error_naming_both_places() -> None:
     rec = make_recording(5, duration=10.0, fixes=False)
     meta = rec.meta.model_copy(update={"imu": rec.meta.imu.model_copy(update={"spec": None})})

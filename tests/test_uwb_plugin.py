@@ -34,7 +34,6 @@ from fusion.solution import Solution
 from plugins.uwb import LeastSquaresOptions, UwbOptions, UwbRanges, least_squares_solution
 from tests.plugin_support import (
     FRAME,
-    MTI_G_700_TUNING,
     group_rms,
     layout_with,
     normalized_errors,
@@ -255,7 +254,8 @@ def _short_run(root: Path, seed: int, extra: tuple[str, ...] = ()) -> Recording:
 
 def _config(**plugin: Any) -> Any:
     block = {"type": "uwb", "sigma_range_m": SIGMA_RANGE, **plugin}
-    return parse_config({"name": "sins_uwb_test", "imu": MTI_G_700_TUNING, "plugins": [block]})
+    imu = load_config(ROOT / "configs" / "sins_uwb.yaml").imu.model_dump()  # MTi instability
+    return parse_config({"name": "sins_uwb_test", "imu": imu, "plugins": [block]})
 
 
 def _errors(solution: Solution, recording: Recording) -> tuple[np.ndarray, np.ndarray]:
