@@ -344,6 +344,11 @@ def score_faults(
     isolations = [e for e in result.faults if e.action == ISOLATE]
     used = {b.type for b in blocks}
     detectable = [f for f in injected if FAULT_SENSOR.get(f.get("type", "")) in used]
+    rejections = {
+        b.instance_name: result.innovations[b.instance_name].rejection_times()
+        for b in blocks
+        if not federated and b.instance_name in result.innovations
+    }
     delays: list[float] = []
     explained: set[int] = set()
     for f in detectable:
@@ -354,13 +359,10 @@ def score_faults(
             if sensor in local_types.get(e.local, set()) and t0 <= e.t <= t1:
                 explained.add(i)
                 times.append(e.t)
-        if not federated:
-            for b in blocks:
-                log = result.innovations.get(b.instance_name)
-                if b.type == sensor and log is not None:
-                    t = log.t
-                    rejected = t[~log.accepted & (t >= t0) & (t <= t1)]
-                    times.extend(rejected[:1].tolist())
+        for b in blocks:
+            t = rejections.get(b.instance_name)
+            if b.type == sensor and t is not None:
+                times.extend(t[(t >= t0) & (t <= t1)][:1].tolist())
         if times:
             delays.append(min(times) - t0)
     return {
@@ -386,9 +388,7 @@ def _trace(
     stride = max(1, math.ceil(int(inside.sum()) / TRACE_POINTS))
     rows = np.flatnonzero(inside)[::stride]
     events = [(e.t, e.local, e.action) for e in result.faults if e.action in (ISOLATE, READMIT)]
-    rejections: dict[str, NDArray[np.float64]] = {}
-    for name, log in result.innovations.items():
-        rejections[name] = log.t[~log.accepted]
+    rejections = {name: log.rejection_times() for name, log in result.innovations.items()}
     return Trace(
         group=task.group,
         method=label,

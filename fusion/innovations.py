@@ -83,6 +83,12 @@ class InnovationLog:
         spilled = np.frombuffer(self._spill.read(), dtype=RECORD)
         return np.concatenate([spilled, held])
 
+    def rejection_times(self) -> NDArray[np.float64]:
+        """Times (s) of the updates the gate rejected, from one read of the records."""
+        records = self.records()
+        times: NDArray[np.float64] = records["t"][records["accepted"] == 0]
+        return times
+
     def __len__(self) -> int:
         return self.count
 

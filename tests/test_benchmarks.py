@@ -32,6 +32,7 @@ from benchmarks.tables import Column, RowSpec, TableSpec, build_table, to_csv, t
 from fusion.config import ConfigError, parse_config
 from fusion.engine import Engine
 from fusion.fault_detection import FaultEvent
+from fusion.innovations import InnovationLog
 from fusion.metrics import compute_metrics
 from fusion.recording import read_recording
 from fusion.sim.simulate import load_scenario, simulate, stream_rng
@@ -161,9 +162,9 @@ def test_fault_scoring_federated_delay_and_false_alarms():
 
 def test_fault_scoring_centralized_uses_gate_rejections():
     injected = [{"type": "odometer_slip", "t_start": 100.0, "t_end": 160.0}]
-    log = SimpleNamespace(
-        t=np.array([90.0, 101.0, 104.0, 130.0]), accepted=np.array([0, 1, 0, 0], dtype=bool)
-    )
+    log = InnovationLog()
+    for t, accepted in ((90.0, False), (101.0, True), (104.0, False), (130.0, False)):
+        log.append(t, SimpleNamespace(nis=1.0, dof=1, accepted=accepted), False)
     result = _fake_result("centralized", [{"type": "odometer"}], innovations={"odometer": log})
     fields = score_faults(injected, result)
     assert fields["detect_delay_s"] == pytest.approx(4.0)  # the rejection at 90 s precedes it
