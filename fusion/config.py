@@ -96,9 +96,22 @@ class FederatedOptions(_Strict):
     )
     master_share: float = Field(0.0, ge=0, lt=1, description="β_m (the master's own share)")
     fusion_period_s: float | None = Field(
-        None, gt=0, description="None: fuse after every update round (the CKF's feedback)"
+        None,
+        gt=0,
+        description="None: every covariance step that carried an update (the CKF's feedback;"
+        " fusing after a step without one changes nothing)",
     )
     fault_detection: FaultDetectionOptions = FaultDetectionOptions()
+
+    @model_validator(mode="after")
+    def _shares_need_resets(self) -> FederatedOptions:
+        if self.mode == "no_reset" and self.sharing != "equal":
+            raise ValueError(
+                f"sharing {self.sharing!r} needs mode fusion_reset: a share is handed out by the"
+                " reset, and without resets a local's covariance stays built on its first share;"
+                " use sharing: equal with mode: no_reset"
+            )
+        return self
 
 
 class DeadReckoningOptions(_Strict):

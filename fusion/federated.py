@@ -30,7 +30,17 @@ with the centralized filter. With information-sharing factors β_i and the maste
   states follow as a Gaussian conditional, keeping K = P_pc P_cc⁻¹ and P_p|c = P_pp − K P_cp:
   x_p ← x_p + K (x_g − x_i,c), P_pc ← K P_i,cc, P_pp ← P_p|c + K P_i,cc Kᵀ (an exact identity
   when nothing changes, so one local with β = 1 reproduces the centralized filter). Mode
-  ``no_reset`` only re-references (each local keeps its own information).
+  ``no_reset`` only re-references (each local keeps its own information) and keeps the equal
+  shares it started with: a local's P_i,cc was built under its share, and re-dividing the shares
+  without a reset rescales it — with ``trace`` the locals that lean on no absolute sensor got
+  shares near 1 and the others near 0, and a 300-s full_afkf run stopped on a covariance that
+  was no longer positive definite. The configuration refuses ``no_reset`` with another rule.
+
+Fusion period: by default at every covariance step that carried an update. After a step of
+prediction only, in ``fusion_reset`` mode every member holds (x_g, P_g/β_i) propagated through
+the same Φ with Q/β_i, and eq. 35 returns the propagated global estimate, so fusing there
+changes nothing (a test fuses at every step and finds the same trajectory). ``fusion_period_s``
+fuses less often instead.
 
 Sharing factors (``sharing``): ``equal``; ``trace`` — β_i ∝ tr(P_i,cc), seed 003 eq. 33: the local
 whose estimate is *less* precise receives the larger share, i.e. the tighter reset P_g/β_i, so its
@@ -371,7 +381,7 @@ class FederatedFilter:
         return [f.kf for f in self.locals] + ([self.master] if self.master is not None else [])
 
     def fusion_due(self, t: float, updated: bool) -> bool:
-        """After every update round, or every ``fusion_period_s``."""
+        """After every covariance step that carried an update, or every ``fusion_period_s``."""
         period = self.options.fusion_period_s
         if period is None:
             return updated
@@ -396,7 +406,8 @@ class FederatedFilter:
         self._last_fusion = t
         members = self._members()
         x_g, p_g, e_g = self._fusion()
-        self._update_shares(members)
+        if self.options.mode == "fusion_reset":
+            self._update_shares(members)
         rejoined = False
         for f in self.locals:
             if f in members and self.options.mode == "fusion_reset":

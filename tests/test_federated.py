@@ -201,6 +201,45 @@ def test_five_source_partition_tracks_the_centralized_filter(tmp_path: Path) -> 
     np.testing.assert_allclose(fed.solution.sigma_position, ckf.solution.sigma_position, rtol=2e-3)
 
 
+@pytest.fixture(scope="module")
+def longwall_60s(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    out = tmp_path_factory.mktemp("lw") / "rec"
+    simulate("longwall-200m", out, seed=2, overrides=["duration_s=60"])
+    return out
+
+
+def _full_afkf(**federated: object) -> dict:
+    data = load_config(CONFIGS / "full_afkf.yaml").model_dump()
+    data["filter"]["federated"].update(federated)
+    return data
+
+
+def test_fusing_at_every_covariance_step_changes_nothing(longwall_60s: Path) -> None:
+    """The default fuses only after steps that carried an update: after a step of prediction
+    alone the fusion-reset locals fuse to the propagated global estimate, so fusing at every
+    covariance step (the issue's default) gives the same run."""
+    rec = read_recording(longwall_60s)
+    default = Engine(parse_config(_full_afkf()), rec).run()
+    every_step = Engine(parse_config(_full_afkf(fusion_period_s=1e-6)), rec).run()
+    np.testing.assert_allclose(every_step.solution.position, default.solution.position, atol=1e-6)
+    np.testing.assert_allclose(
+        every_step.solution.sigma_position, default.solution.sigma_position, rtol=1e-6
+    )
+
+
+def test_no_reset_needs_equal_shares_and_runs(longwall_60s: Path) -> None:
+    """Without resets the locals keep equal shares (a recomputed share would rescale a
+    covariance built under the old one): the configuration refuses a sharing rule that only a
+    reset can hand out, and with equal shares the fused solution stays near the reset one."""
+    with pytest.raises(ConfigError, match="no_reset"):
+        parse_config(_full_afkf(mode="no_reset"))
+    rec = read_recording(longwall_60s)
+    reset = Engine(parse_config(_full_afkf()), rec).run()
+    no_reset = Engine(parse_config(_full_afkf(mode="no_reset", sharing="equal")), rec).run()
+    assert np.abs(no_reset.solution.position - reset.solution.position).max() < 0.1
+    assert np.all(np.isfinite(no_reset.solution.sigma_position))
+
+
 def test_reset_carries_own_states_as_a_conditional() -> None:
     """Resetting the common states moves a local's own states along their regression on them,
     and leaves the covariance positive definite."""
