@@ -27,6 +27,15 @@ Tightly coupled ranges (:class:`UwbRanges`)
     non-line-of-sight (NLOS) range, whose bias is large and positive, is rejected alone by the
     engine's χ² gate (the block's ``gate_probability``) without taking the other anchors with it.
 
+    Epoch grid (``epoch_grid_s``): a range system polls its anchors a few milliseconds apart
+    (five anchors at 3.1 ms in ``longwall-200m``), and one epoch per range means one covariance
+    step, one fusion and one SINS correction per range. On a grid, range k (time t_k) is taken
+    at the first grid time t ≥ t_k, still as its own scalar update, with the tag moved back
+    along the SINS velocity: ``p̃(t_k) = p̃(t) − ṽ (t − t_k)``, so H gains the velocity columns
+    ``−(t − t_k) uᵀ`` (first order in the acceleration over t − t_k: 0.1 m/s² over 0.1 s moves
+    the tag 0.5 mm). With a 0.1-s grid ``full_afkf`` runs 2.2× faster on ``longwall-200m``
+    (200 s: 10.1 s against 21.9 s) at the same horizontal RMS (0.0216 against 0.0215 m).
+
     ``max_range_m``: a range whose *predicted* tag–anchor distance ``r̃_i`` exceeds it produces
     nothing (outside the anchor's working range; seed 004 §1 uses the anchors within ~10 m).
     The predicted rather than the measured range decides, so that an NLOS-inflated reading of
@@ -109,7 +118,7 @@ from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from fusion.attitude import dcm_from_euler, dcm_from_quat, quat_from_rotvec
 from fusion.earth import LocalFrame, ecef_to_enu_matrix
-from fusion.error_model import ATTITUDE, POSITION, StateBlock
+from fusion.error_model import ATTITUDE, POSITION, VELOCITY, StateBlock
 from fusion.kalman import chi2_threshold
 from fusion.plugin import Measurement, MeasurementContext, Plugin, PluginOptions
 from fusion.recording import Recording, UwbData, UwbMeta
@@ -144,6 +153,12 @@ class UwbOptions(PluginOptions):
     )
     max_range_m: float | None = Field(
         None, gt=0, description="anchors predicted farther than this produce nothing"
+    )
+    epoch_grid_s: float | None = Field(
+        None,
+        gt=0,
+        description="process each range at the first time of this grid at or after it, the tag"
+        " taken back along the SINS velocity to the range time (None: at its own time)",
     )
     range_bias: bool = Field(False, description="one bias state per anchor")
     range_bias_sigma_m: float = Field(0.1, gt=0, description="prior σ of each range bias")
@@ -225,8 +240,12 @@ class UwbRanges(Plugin):
         )
 
     def epochs(self) -> NDArray[np.float64]:
-        """The range times (one epoch per ``uwb.csv`` row)."""
-        return self.data.t
+        """One epoch per ``uwb.csv`` row: its time, or the first ``epoch_grid_s`` grid time at
+        or after it (the ranges of one round then share an epoch)."""
+        grid = self.options.epoch_grid_s
+        if grid is None:
+            return self.data.t
+        return np.ceil(self.data.t / grid - 1e-9) * grid
 
     def noise_sigma(self) -> NDArray[np.float64]:
         """Current range-noise σ per anchor (m): the configured one, or the learned one."""
@@ -236,17 +255,19 @@ class UwbRanges(Plugin):
         """Residual of the predicted range against row ``index``, linearized at the estimate."""
         k = int(self.data.anchor_index[index])
         layout = ctx.layout
-        att, pos = layout.slice(ATTITUDE), layout.slice(POSITION)
+        att, pos, vel = layout.slice(ATTITUDE), layout.slice(POSITION), layout.slice(VELOCITY)
         rot = ecef_to_enu_matrix(ctx.lat, ctx.lon) @ ctx.frame.c_e_n.T  # origin ENU → local
-        x_att, x_pos = ctx.x[att], ctx.x[pos]
-        position = ctx.position_enu
+        x_att, x_pos, x_vel = ctx.x[att], ctx.x[pos], ctx.x[vel]
+        position, velocity = ctx.position_enu, ctx.velocity
         c_b_n = ctx.c_b_n
-        corrected = bool(np.any(x_att) or np.any(x_pos))
+        corrected = bool(np.any(x_att) or np.any(x_pos) or np.any(x_vel))
         if corrected:  # linearize at the estimate: the SINS state corrected by x̂
             position = position - rot.T @ x_pos
+            velocity = velocity - x_vel
             c_b_n = dcm_from_quat(quat_from_rotvec(x_att)) @ c_b_n
         arm_n = c_b_n @ self.lever_arm
-        line = rot @ (position - self.anchors[k]) + arm_n
+        back = ctx.t - float(self.data.t[index])  # > 0 on an epoch grid: the range came earlier
+        line = rot @ (position - self.anchors[k]) - back * velocity + arm_n
         predicted = math.sqrt(float(line @ line))
         if self.options.max_range_m is not None and predicted > self.options.max_range_m:
             return None
@@ -258,25 +279,29 @@ class UwbRanges(Plugin):
             u[0] * arm_n[1] - u[1] * arm_n[0],
         )
         h[pos] = u
+        h[vel] = -back * u
         z = predicted - float(self.data.range[index])
         if corrected:
-            z += float(h[att] @ x_att + h[pos] @ x_pos)
+            z += float(h[att] @ x_att + h[pos] @ x_pos + h[vel] @ x_vel)
         if self.options.range_bias:
             h[layout.slice(self.bias_block).start + k] = -1.0
-        variance = self._variance(k, ctx, z, h)
+        variance = self._variance(index, k, ctx, z, h)
         return Measurement(np.array([z]), h[None, :], np.array([[variance]]))
 
-    def _variance(self, k: int, ctx: MeasurementContext, z: float, h: NDArray[np.float64]) -> float:
+    def _variance(
+        self, index: int, k: int, ctx: MeasurementContext, z: float, h: NDArray[np.float64]
+    ) -> float:
         """R of anchor ``k``: fixed, or the variational-Bayes update (module docstring)."""
         if not self.adaptive:
             return self.options.sigma_range_m**2
+        t = float(self.data.t[index])
         if np.isfinite(self.t_last[k]):
-            forget = math.exp(-(ctx.t - self.t_last[k]) / self.options.adaptive_window_s)
+            forget = math.exp(-(t - self.t_last[k]) / self.options.adaptive_window_s)
             self.alpha[k] *= forget
             self.beta[k] *= forget
             if self.alpha[k] < 0.5:
                 self.alpha[k], self.beta[k] = self._alpha0, self._beta0
-        self.t_last[k] = ctx.t
+        self.t_last[k] = t
         nu = z - float(h @ ctx.x)
         s = float(h @ ctx.covariance @ h)
         r = self.beta[k] / self.alpha[k]

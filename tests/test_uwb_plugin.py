@@ -155,6 +155,53 @@ def test_h_matches_numerical_differentiation() -> None:
         assert np.count_nonzero(m.H[0, bias_slice]) == 1
 
 
+def test_epoch_grid_takes_the_tag_back_to_the_range_time() -> None:
+    """On a 0.1-s epoch grid the ranges of t = 0.50, 0.51, 0.52 s are processed at 0.5, 0.6 and
+    0.6 s; the tag is taken back along the velocity to each range's time. z = 0 at the truth,
+    and H (now with velocity columns −Δt·uᵀ) matches numerical differentiation."""
+    velocity = np.array([0.25, -0.1, 0.02])
+    epoch_time = {0: 0.5, 1: 0.6, 2: 0.6}
+    tag = _true_tag()
+    range_time = 0.5 + 0.01 * np.arange(3)
+    ranges = [
+        (a, float(np.linalg.norm(tag - velocity * (epoch_time[k] - range_time[k]) - p)))
+        for k, (a, p) in enumerate((a, np.array(p)) for a, p in ANCHORS_ENU.items())
+    ]
+    plugin = UwbRanges(
+        "uwb", UwbOptions(epoch_grid_s=0.1), _recording(ANCHORS_ENU, LEVER_ARM, ranges)
+    )
+    np.testing.assert_allclose(plugin.epochs(), [0.5, 0.6, 0.6])
+    layout = layout_with(())
+    for k in range(3):
+
+        def residual(dx: np.ndarray, k: int = k) -> np.ndarray:
+            ctx = perturbed_context(
+                layout, dx, t=epoch_time[k], position_enu=P_TRUE, velocity=velocity, c_b_n=C_B_N
+            )
+            m = plugin.measure(k, ctx)
+            assert m is not None
+            return m.z
+
+        # the velocity is local-level, the truth above moved the tag along the origin's axes:
+        # 6e-6 rad apart at 38 m, 1e-7 m over these 2.5 cm
+        np.testing.assert_allclose(residual(np.zeros(layout.dim)), 0.0, atol=1e-6)
+        steps = np.array([1e-3] * 3 + [1e-5] * 3 + [1e-2] * 3 + [0.0] * 6)
+        numeric = numerical_jacobian(residual, layout.dim, steps)
+        ctx = perturbed_context(
+            layout,
+            np.zeros(layout.dim),
+            t=epoch_time[k],
+            position_enu=P_TRUE,
+            velocity=velocity,
+            c_b_n=C_B_N,
+        )
+        m = plugin.measure(k, ctx)
+        assert m is not None
+        np.testing.assert_allclose(m.H, numeric, atol=1e-5, err_msg=f"range {k}")
+        back = epoch_time[k] - range_time[k]
+        np.testing.assert_allclose(m.H[0, 0:3], -back * m.H[0, 6:9], atol=1e-12)
+
+
 def test_linearized_at_the_estimate() -> None:
     """With SINS errors not yet fed back (x̂ ≠ 0), the innovation z − H x̂ is the residual of
     the corrected state: zero when x̂ is the true error, however large (seed 004 eq. 25)."""
