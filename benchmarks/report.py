@@ -104,15 +104,29 @@ def accuracy_csv(merged: TaskResult) -> str:
 SIMULATED_BEGIN, SIMULATED_END = "<!-- simulated:begin -->", "<!-- simulated:end -->"
 
 
+def committed_section(results_md: str, suite: str) -> str:
+    """Suite ``suite``'s section of a RESULTS.md text (its ``### `suite` —`` heading up to the
+    next heading or the end of the simulated block), without trailing blank lines; "" if absent."""
+    start = results_md.find(f"### `{suite}` ")
+    if start < 0:
+        return ""
+    ends = [results_md.find(mark, start + 1) for mark in ("\n### ", "\n## ", SIMULATED_END)]
+    end = min((e for e in ends if e >= 0), default=len(results_md))
+    return results_md[start:end].rstrip()
+
+
 def write_results_md(suites: Sequence[Suite], root: Path, command: str) -> Path:
     """The simulated suites' block of ``benchmarks/RESULTS.md``, from ``root/SUITE/results.md``.
 
     Each section keeps the command, date and machine that produced it; a suite without output
-    is listed as not run. Only the block between the ``simulated`` markers is replaced (the
-    real-data suite keeps its own block in the same file). The headline bar charts are copied
-    to ``benchmarks/figures/`` (committed) so that the image links work in the repository.
+    under ``root`` keeps its section from the current RESULTS.md (so rerunning one suite in a
+    fresh clone refreshes that suite only), or is listed as not run. Only the block between the
+    ``simulated`` markers is replaced (the real-data suite keeps its own block in the same
+    file). The headline bar charts are copied to ``benchmarks/figures/`` (committed) so that
+    the image links work in the repository.
     """
     COMMITTED_FIGURES.mkdir(exist_ok=True)
+    old = RESULTS_MD.read_text(encoding="utf-8") if RESULTS_MD.exists() else ""
     lines = [
         SIMULATED_BEGIN,
         "## Simulated Monte Carlo suites (`python -m benchmarks SUITE`)",
@@ -129,7 +143,10 @@ def write_results_md(suites: Sequence[Suite], root: Path, command: str) -> Path:
     for suite in suites:
         md = root / suite.name / "results.md"
         if not md.exists():
-            lines += [f"### `{suite.name}` — {suite.description}", "", "Not run yet.", ""]
+            kept = committed_section(old, suite.name)
+            heading = f"### `{suite.name}` — {suite.description}"
+            lines += [kept] if kept else [heading, "", "Not run yet."]
+            lines.append("")
             continue
         text = md.read_text(encoding="utf-8")
         lines.append(re.sub(rf"^{FIGURES_LINE}.*$", "", text, flags=re.MULTILINE).rstrip())
@@ -143,7 +160,6 @@ def write_results_md(suites: Sequence[Suite], root: Path, command: str) -> Path:
         lines.append("")
     lines.append(SIMULATED_END)
     block = "\n".join(lines)
-    old = RESULTS_MD.read_text(encoding="utf-8") if RESULTS_MD.exists() else ""
     pattern = re.compile(re.escape(SIMULATED_BEGIN) + r".*?" + re.escape(SIMULATED_END), re.DOTALL)
     if pattern.search(old):
         new = pattern.sub(lambda _: block, old)

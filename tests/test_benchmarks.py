@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 
 from benchmarks.faults import plan_fault
-from benchmarks.report import accuracy_csv, write_suite
+from benchmarks.report import SIMULATED_END, accuracy_csv, committed_section, write_suite
 from benchmarks.runner import (
     Method,
     Task,
@@ -298,6 +298,18 @@ def test_write_suite_outputs(local_runs, tmp_path: Path):
         "maginterf_od_gated_plan.png",
     ]
     assert "| OD | 2 |" in markdown and "no_such_config" in markdown
+
+
+def test_a_suite_without_output_keeps_its_committed_section():
+    text = (
+        "## Simulated\n\n### `seed002` — MC\n\nrow a\n\n![x](figures/x.png)\n\n"
+        "### `seed003` — MAG\n\nrow b\n" + SIMULATED_END + "\n## Real\n"
+    )
+    assert (
+        committed_section(text, "seed002") == "### `seed002` — MC\n\nrow a\n\n![x](figures/x.png)"
+    )
+    assert committed_section(text, "seed003") == "### `seed003` — MAG\n\nrow b"
+    assert committed_section(text, "seed004") == ""
 
 
 def test_every_suite_builds_its_tasks_and_tables():
