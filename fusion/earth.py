@@ -119,10 +119,27 @@ class LocalFrame:
         self.height0 = float(height_m)
         self.r0_e = geodetic_to_ecef(self.lat0, self.lon0, self.height0)
         self.c_e_n = ecef_to_enu_matrix(self.lat0, self.lon0)
+        self._point: tuple[tuple[float, float, float], NDArray[np.float64]] | None = None
+        self._turn: tuple[tuple[float, float], NDArray[np.float64]] | None = None
 
     def to_enu(self, lat: ArrayLike, lon: ArrayLike, height: ArrayLike) -> NDArray[np.float64]:
         """ENU metres (..., 3) of geodetic points (radians, metres)."""
         return (geodetic_to_ecef(lat, lon, height) - self.r0_e) @ self.c_e_n.T
+
+    def point_enu(self, lat: float, lon: float, height: float) -> NDArray[np.float64]:
+        """:meth:`to_enu` of one point, remembering the last one: the updates of one epoch
+        (a round of UWB ranges, a stacked CPOEM point) all ask for the same nominal position."""
+        key = (lat, lon, height)
+        if self._point is None or self._point[0] != key:
+            self._point = key, self.to_enu(lat, lon, height)
+        return self._point[1].copy()
+
+    def point_rotation_to_local(self, lat: float, lon: float) -> NDArray[np.float64]:
+        """:meth:`rotation_to_local` of one point, remembering the last one."""
+        key = (lat, lon)
+        if self._turn is None or self._turn[0] != key:
+            self._turn = key, ecef_to_enu_matrix(lat, lon) @ self.c_e_n.T
+        return self._turn[1].copy()
 
     def to_geodetic(self, enu: ArrayLike) -> tuple[NDArray[np.float64], ...]:
         """Geodetic latitude, longitude (rad) and height (m) of ENU points (..., 3)."""

@@ -84,8 +84,9 @@ class MeasurementContext:
         Nominal ENU velocity (m/s).
     c_b_n
         Nominal attitude matrix.
-    position_enu
-        Nominal position in ENU metres about the recording origin (computed on first use).
+    position_enu, rotation_to_local
+        Nominal position in ENU metres about the recording origin, and the rotation from the
+        origin's ENU axes to the local ones there (computed on first use).
     layout
         States of the filter being served.
     x
@@ -122,7 +123,12 @@ class MeasurementContext:
     @cached_property
     def position_enu(self) -> NDArray[np.float64]:
         """Nominal position in ENU metres about the recording origin."""
-        return self.frame.to_enu(self.lat, self.lon, self.height)
+        return self.frame.point_enu(self.lat, self.lon, self.height)
+
+    @cached_property
+    def rotation_to_local(self) -> NDArray[np.float64]:
+        """Rotation from the origin's ENU axes to the local ENU axes at the nominal position."""
+        return self.frame.point_rotation_to_local(self.lat, self.lon)
 
 
 class Plugin(ABC):

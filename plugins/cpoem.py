@@ -458,7 +458,7 @@ class Cpoem(Plugin):
     def measure(self, index: int, ctx: MeasurementContext) -> Measurement | None:
         """The point's predicted position (even index) or the record of the estimate (odd)."""
         visit = self.visits[index // 2]
-        rot = ctx.frame.rotation_to_local(ctx.lat, ctx.lon)
+        rot = ctx.rotation_to_local  # origin ENU → local ENU
         if index % 2 == 1:
             if not self.is_end(visit.point):
                 pos = ctx.layout.slice(POSITION)

@@ -50,7 +50,7 @@ class PositionFixes(Plugin):
     def measure(self, index: int, ctx: MeasurementContext) -> Measurement:
         """Residual of the predicted antenna position against fix ``index``."""
         arm_n = ctx.c_b_n @ self.lever_arm
-        rot = ctx.frame.rotation_to_local(ctx.lat, ctx.lon)
+        rot = ctx.rotation_to_local  # origin ENU → local ENU
         z = rot @ (ctx.position_enu - self.data.enu[index]) + arm_n
         h = np.zeros((3, ctx.layout.dim))
         h[:, ctx.layout.slice(ATTITUDE)] = skew(arm_n)

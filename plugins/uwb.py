@@ -117,7 +117,7 @@ from numpy.typing import NDArray
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from fusion.attitude import dcm_from_euler, dcm_from_quat, quat_from_rotvec
-from fusion.earth import LocalFrame, ecef_to_enu_matrix
+from fusion.earth import LocalFrame
 from fusion.error_model import ATTITUDE, POSITION, VELOCITY, StateBlock
 from fusion.kalman import chi2_threshold
 from fusion.plugin import Measurement, MeasurementContext, Plugin, PluginOptions
@@ -256,7 +256,7 @@ class UwbRanges(Plugin):
         k = int(self.data.anchor_index[index])
         layout = ctx.layout
         att, pos, vel = layout.slice(ATTITUDE), layout.slice(POSITION), layout.slice(VELOCITY)
-        rot = ecef_to_enu_matrix(ctx.lat, ctx.lon) @ ctx.frame.c_e_n.T  # origin ENU → local
+        rot = ctx.rotation_to_local  # origin ENU → local ENU
         x_att, x_pos, x_vel = ctx.x[att], ctx.x[pos], ctx.x[vel]
         position, velocity = ctx.position_enu, ctx.velocity
         c_b_n = ctx.c_b_n
