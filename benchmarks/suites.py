@@ -477,9 +477,16 @@ def _is_filter(config: str) -> bool:
     return (data.get("filter") or {}).get("architecture", "centralized") != "dead_reckoning"
 
 
+SPEED_WARM_UP = ("dr_traditional", "full_afkf_rts")
+"""Run first, untabulated: numba compiles a kernel on its first call and caches it beside the
+source (``__pycache__``), so on a fresh clone the first configurations would count several
+seconds of one-time compilation as run time. These two touch every kernel."""
+
+
 def speed_tasks(runs: int, overrides: tuple[str, ...]) -> list[Task]:
-    """Every configuration on longwall-shift in a child process, and its naive reference."""
-    methods = []
+    """Every configuration on longwall-shift in a child process, and its naive reference,
+    after the warm-up runs (:data:`SPEED_WARM_UP`, rows ``warm-up …`` in runs.csv only)."""
+    methods = [Method(f"warm-up {c}", c, measure_memory=True) for c in SPEED_WARM_UP]
     for c in config_names():
         methods.append(Method(c, c, measure_memory=True))
         if _is_filter(c):
@@ -510,7 +517,8 @@ def speed_tables() -> list[TableSpec]:
             note="the preset is 8 h (28 800 s); --set duration_s=… runs a slice of it. One"
             " configuration at a time, each in a fresh child process (peak RSS from"
             " the operating system at its exit: interpreter, imports, recording and run); naive:"
-            " filter.covariance_step_s = 0.01 (the covariance propagated at every IMU sample)",
+            " filter.covariance_step_s = 0.01 (the covariance propagated at every IMU sample);"
+            " numba's one-time compilation is excluded (untimed warm-up runs first)",
         )
     ]
 
