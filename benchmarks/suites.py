@@ -410,7 +410,7 @@ def seed004_tables() -> list[TableSpec]:
 ABLATION_TRACED = ("full_ckf", "full_afkf")
 ABLATION_DEFAULT_RUNS = 3
 """Fewer than the other suites' 20: each seed is six 5.75-hour recordings times every
-configuration — several CPU-hours per seed while full_afkf runs at ≈ 16× real time (speed
+configuration — several CPU-hours per seed while full_afkf runs at ≈ 100× real time (speed
 suite, November 2026); ``--runs`` sets more."""
 ABLATION_GROUPS = ("nominal", *FAULT_KINDS)
 
