@@ -256,6 +256,13 @@ def create_plugin(
     recording: Recording,
     where: Sequence[str | int],
 ) -> Plugin:
-    """Instantiate plugin ``kind`` with ``options``; errors name ``where`` (the config path)."""
+    """Instantiate plugin ``kind`` with ``options``; errors name ``where`` (the config path),
+    and a recording the plugin cannot serve (a missing sensor file or meta.yaml section) is a
+    :class:`PluginError` naming the recording."""
     cls, opts = validated_options(kind, options, where)
-    return cls(name, opts, recording)
+    try:
+        return cls(name, opts, recording)
+    except ValueError as exc:
+        raise PluginError(
+            f"configuration: key {dotted(where)} ({kind}): recording {recording.path}: {exc}"
+        ) from None

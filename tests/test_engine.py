@@ -160,6 +160,24 @@ def test_cli_run_validate_and_check(tmp_path: Path, capsys: pytest.CaptureFixtur
     assert read_recording(rec_dir).imu.t.size == 6001
 
 
+def test_cli_names_the_plugin_and_recording_when_a_sensor_is_missing(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """A configuration whose plugin needs a sensor file the recording lacks: exit code 2 and
+    one line naming the configuration key, the plugin, the recording and the file (no
+    traceback, nothing run without the plugin)."""
+    rec_dir = tmp_path / "rec"
+    write_recording(make_recording(5, duration=20.0, fixes=False), rec_dir)
+    config = tmp_path / "c.yaml"
+    config.write_text("name: uwb\nplugins:\n  - type: uwb\n")
+    out = tmp_path / "out"
+    code = main(["run", "--config", str(config), "--recording", str(rec_dir), "--out", str(out)])
+    assert code == 2
+    err = capsys.readouterr().err
+    assert "key plugins[0] (uwb)" in err and str(rec_dir) in err and "uwb.csv" in err
+    assert not (out / "solution.csv").exists()
+
+
 def test_python_api_accepts_paths_and_mappings(tmp_path: Path) -> None:
     import fusion
 
