@@ -510,7 +510,7 @@ def speed_tables() -> list[TableSpec]:
                 Column("duration_s", "recording (s)", 0),
                 Column("realtime_factor", "real-time factor", 0),
                 Column("wall_s", "run time (s)", 1),
-                Column("peak_rss_mb", "peak RSS (MB)", 0),
+                Column("peak_rss_mb", "peak RSS (MiB)", 0),
                 Column("read_s", "read recording (s)", 1),
             ),
             headline="realtime_factor",
