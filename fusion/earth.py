@@ -129,17 +129,17 @@ class LocalFrame:
     def point_enu(self, lat: float, lon: float, height: float) -> NDArray[np.float64]:
         """:meth:`to_enu` of one point, remembering the last one: the updates of one epoch
         (a round of UWB ranges, a stacked CPOEM point) all ask for the same nominal position."""
-        key = (lat, lon, height)
-        if self._point is None or self._point[0] != key:
-            self._point = key, self.to_enu(lat, lon, height)
-        return self._point[1].copy()
+        key, memo = (lat, lon, height), self._point  # one read: safe beside other threads
+        if memo is None or memo[0] != key:
+            memo = self._point = key, self.to_enu(lat, lon, height)
+        return memo[1].copy()
 
     def point_rotation_to_local(self, lat: float, lon: float) -> NDArray[np.float64]:
         """:meth:`rotation_to_local` of one point, remembering the last one."""
-        key = (lat, lon)
-        if self._turn is None or self._turn[0] != key:
-            self._turn = key, ecef_to_enu_matrix(lat, lon) @ self.c_e_n.T
-        return self._turn[1].copy()
+        key, memo = (lat, lon), self._turn
+        if memo is None or memo[0] != key:
+            memo = self._turn = key, ecef_to_enu_matrix(lat, lon) @ self.c_e_n.T
+        return memo[1].copy()
 
     def to_geodetic(self, enu: ArrayLike) -> tuple[NDArray[np.float64], ...]:
         """Geodetic latitude, longitude (rad) and height (m) of ENU points (..., 3)."""
