@@ -119,27 +119,28 @@ class LocalFrame:
         self.height0 = float(height_m)
         self.r0_e = geodetic_to_ecef(self.lat0, self.lon0, self.height0)
         self.c_e_n = ecef_to_enu_matrix(self.lat0, self.lon0)
-        self._point: tuple[tuple[float, float, float], NDArray[np.float64]] | None = None
-        self._turn: tuple[tuple[float, float], NDArray[np.float64]] | None = None
+        self._point: (
+            tuple[tuple[float, float, float], NDArray[np.float64], NDArray[np.float64]] | None
+        ) = None
 
     def to_enu(self, lat: ArrayLike, lon: ArrayLike, height: ArrayLike) -> NDArray[np.float64]:
         """ENU metres (..., 3) of geodetic points (radians, metres)."""
         return (geodetic_to_ecef(lat, lon, height) - self.r0_e) @ self.c_e_n.T
 
-    def point_enu(self, lat: float, lon: float, height: float) -> NDArray[np.float64]:
-        """:meth:`to_enu` of one point, remembering the last one: the updates of one epoch
-        (a round of UWB ranges, a stacked CPOEM point) all ask for the same nominal position."""
+    def point(
+        self, lat: float, lon: float, height: float
+    ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """:meth:`to_enu` and :meth:`rotation_to_local` of one point, remembering the last one:
+        the updates of one epoch (a round of UWB ranges, a stacked CPOEM point) all ask for the
+        same nominal position. Copies, so that a caller may modify them."""
         key, memo = (lat, lon, height), self._point  # one read: safe beside other threads
         if memo is None or memo[0] != key:
-            memo = self._point = key, self.to_enu(lat, lon, height)
-        return memo[1].copy()
-
-    def point_rotation_to_local(self, lat: float, lon: float) -> NDArray[np.float64]:
-        """:meth:`rotation_to_local` of one point, remembering the last one."""
-        key, memo = (lat, lon), self._turn
-        if memo is None or memo[0] != key:
-            memo = self._turn = key, ecef_to_enu_matrix(lat, lon) @ self.c_e_n.T
-        return memo[1].copy()
+            memo = self._point = (
+                key,
+                self.to_enu(lat, lon, height),
+                self.rotation_to_local(lat, lon),
+            )
+        return memo[1].copy(), memo[2].copy()
 
     def to_geodetic(self, enu: ArrayLike) -> tuple[NDArray[np.float64], ...]:
         """Geodetic latitude, longitude (rad) and height (m) of ENU points (..., 3)."""

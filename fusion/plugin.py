@@ -123,12 +123,12 @@ class MeasurementContext:
     @cached_property
     def position_enu(self) -> NDArray[np.float64]:
         """Nominal position in ENU metres about the recording origin."""
-        return self.frame.point_enu(self.lat, self.lon, self.height)
+        return self.frame.point(self.lat, self.lon, self.height)[0]
 
     @cached_property
     def rotation_to_local(self) -> NDArray[np.float64]:
         """Rotation from the origin's ENU axes to the local ENU axes at the nominal position."""
-        return self.frame.point_rotation_to_local(self.lat, self.lon)
+        return self.frame.point(self.lat, self.lon, self.height)[1]
 
 
 class Plugin(ABC):

@@ -93,15 +93,13 @@ def test_enu_round_trip_and_axes() -> None:
     assert lat1 - frame.lat0 == pytest.approx(100.0 / (rm + frame.height0), rel=1e-6)
 
 
-def test_point_memos_match_the_array_forms_and_hand_out_copies() -> None:
+def test_point_memo_matches_the_array_forms_and_hands_out_copies() -> None:
     frame = earth.LocalFrame(35.4, 116.6, -650.0)
     lat, lon, height = np.deg2rad(35.4005), np.deg2rad(116.6007), -648.0
-    first = frame.point_enu(lat, lon, height)
-    np.testing.assert_array_equal(first, frame.to_enu(lat, lon, height))
-    first[:] = 0.0  # the caller's copy; the memo keeps the point
-    np.testing.assert_array_equal(frame.point_enu(lat, lon, height), frame.to_enu(lat, lon, height))
-    np.testing.assert_array_equal(
-        frame.point_rotation_to_local(lat, lon), frame.rotation_to_local(lat, lon)
-    )
-    other = frame.point_enu(lat + 1e-6, lon, height)  # a new point replaces the memo
+    enu, rotation = frame.point(lat, lon, height)
+    np.testing.assert_array_equal(enu, frame.to_enu(lat, lon, height))
+    np.testing.assert_array_equal(rotation, frame.rotation_to_local(lat, lon))
+    enu[:] = 0.0  # the caller's copy; the memo keeps the point
+    np.testing.assert_array_equal(frame.point(lat, lon, height)[0], frame.to_enu(lat, lon, height))
+    other = frame.point(lat + 1e-6, lon, height)[0]  # a new point replaces the memo
     np.testing.assert_array_equal(other, frame.to_enu(lat + 1e-6, lon, height))
