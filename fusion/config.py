@@ -138,6 +138,12 @@ class FilterOptions(_Strict):
     jump_detection: JumpDetectionOptions = JumpDetectionOptions()
     dead_reckoning: DeadReckoningOptions = DeadReckoningOptions()
     covariance_step_s: float = Field(0.1, gt=0, description="covariance propagation step")
+    specific_force_time_constant_s: float = Field(
+        0.0,
+        ge=0,
+        description="low-pass of the specific force in F against vibration (0: step mean;"
+        " fusion.error_model.SpecificForceFilter)",
+    )
     discretization: Literal["series", "van_loan"] = "series"
     error_model: Literal["full", "low_speed"] = "full"
     coning_sculling: bool = True

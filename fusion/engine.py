@@ -34,6 +34,7 @@ from fusion.error_model import (
     GYRO_BIAS,
     ErrorModel,
     ImuNoise,
+    SpecificForceFilter,
     StateLayout,
     common_blocks,
 )
@@ -273,6 +274,7 @@ class Engine:
             eye = np.eye(bank.smoothing_dim)
             smoother.step(t0, eye, state, state, np.zeros(bank.smoothing_dim), sins.nav)
         t_cov = t0
+        specific_force = SpecificForceFilter(cfg.specific_force_time_constant_s)
         gaps = iter(self.gap_bridges)
         next_gap = next(gaps, None)
         n_events = len(times)
@@ -287,7 +289,7 @@ class Engine:
             dt = te - t_cov
             phi = None
             if dt > 1e-9:
-                f_n = sins.take_velocity_increment() / dt
+                f_n = specific_force(sins.take_velocity_increment() / dt, dt)
                 phi, qd = self.model.discrete(sins.nav, f_n, sins.c_b_n, dt)
                 while next_gap is not None and te > next_gap.t_start:
                     qd = qd + self._gap_noise(next_gap, sins, f_n)

@@ -8,6 +8,7 @@ from fusion.earth import LocalFrame
 from fusion.error_model import (
     ErrorModel,
     ImuNoise,
+    SpecificForceFilter,
     StateLayout,
     common_blocks,
     discretize,
@@ -92,3 +93,15 @@ def test_series_and_van_loan_agree() -> None:
     phi_v, qd_v = discretize(f, q, 0.1, "van_loan")
     np.testing.assert_allclose(phi_s, phi_v, atol=1e-7)
     np.testing.assert_allclose(qd_s, qd_v, atol=1e-3 * np.abs(qd_v).max())
+
+
+def test_specific_force_filter_is_a_first_order_low_pass() -> None:
+    """τ = 0 passes the step mean through; otherwise it starts at the first step and follows a
+    step change by 1 − e^(−t/τ)."""
+    np.testing.assert_array_equal(SpecificForceFilter(0.0)(np.ones(3), 0.1), np.ones(3))
+    low_pass = SpecificForceFilter(1.0)
+    np.testing.assert_array_equal(low_pass(np.zeros(3), 0.01), np.zeros(3))
+    for _ in range(100):  # 1 s of a unit step at 100 Hz
+        value = low_pass(np.array([0.0, 1.0, 0.0]), 0.01)
+    assert value[1] == pytest.approx(1.0 - np.exp(-1.0), abs=0.005)
+    assert value[0] == value[2] == 0.0
