@@ -40,7 +40,7 @@ The ``f^n`` in F is the mean specific force of the covariance step, optionally l
 vibration aliases into the 0.1-s step means as ±0.05 m/s² of horizontal force, and ``f^n × φ``
 then lets 10-Hz velocity aiding "see" the heading through couplings that its interval means
 cannot resolve. The filter grew overconfident in the yaw (``longwall-200m``, SINS + odometer at
-the encoder's 2–3 mm/s, 8 seeds of 300 s: yaw RMS(ε/σ) 2.1; without vibration 0.8; with
+the encoder's 2–3 mm/s, 8 seeds of 300 s: yaw RMS(ε/σ) 2.1; without vibration 0.9; with
 τ = 1 s 1.2). The configs of the shearer set τ = 1 s (README, "Configurations").
 
 Discretization over a covariance step Δt: ``series`` (default) uses

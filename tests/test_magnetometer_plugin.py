@@ -302,7 +302,7 @@ def test_magnetometer_bounds_yaw_and_position_error(monte_carlo: dict[str, Any])
     than half and the east/north RMS position error drops. The seed reports ~75 % for the
     position; its SINS/OD had no stop calibration. With the odometer's zero-angular-rate update
     at stops in both configurations the gyro biases are learned before the first drive and the
-    magnetometer adds less: measured yaw RMS 0.96° → 0.18°, east/north RMS −14 % / −30 %
+    magnetometer adds less: measured yaw RMS 0.97° → 0.18°, east/north RMS −10 % / −17 %
     (without the stop calibration it was −63 % / −78 %)."""
     rms = {
         k: np.array([[*np.sqrt(np.mean(p**2, axis=0)), np.sqrt(np.mean(y**2))] for _, p, y in runs])
