@@ -121,14 +121,20 @@ class MeasurementContext:
     travel: NDArray[np.float64] = field(default_factory=lambda: np.zeros(3))
 
     @cached_property
+    def _local_point(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """The nominal position's ENU metres and rotation to local axes, asked of the frame
+        once per context (:meth:`fusion.earth.LocalFrame.point`)."""
+        return self.frame.point(self.lat, self.lon, self.height)
+
+    @property
     def position_enu(self) -> NDArray[np.float64]:
         """Nominal position in ENU metres about the recording origin."""
-        return self.frame.point(self.lat, self.lon, self.height)[0]
+        return self._local_point[0]
 
-    @cached_property
+    @property
     def rotation_to_local(self) -> NDArray[np.float64]:
         """Rotation from the origin's ENU axes to the local ENU axes at the nominal position."""
-        return self.frame.point(self.lat, self.lon, self.height)[1]
+        return self._local_point[1]
 
 
 class Plugin(ABC):

@@ -244,13 +244,12 @@ class Odometer(Plugin):
             measured[1] = self.speed[index]
             speed = self._reference_speed(index, float(ctx.x[scale_states].sum()))
             v_b = self.c_b_m.T @ np.array([0.0, speed, 0.0])
+            column_velocity = ctx.c_b_n @ v_b  # attitude columns at the encoder's reference
         else:
             v_b = self._constrained_velocity(c_n_b @ velocity, ctx)
+            column_velocity = velocity  # without an odometer at the SINS velocity (docstring)
         z = c_n_m @ velocity - measured
         h = np.zeros((3, ctx.layout.dim))
-        # The attitude columns at the encoder's reference velocity (C_b^n v_b), or without an
-        # odometer at the SINS velocity (see the module docstring).
-        column_velocity = c_n_b.T @ v_b if self.use_speed else velocity
         h[:, ctx.layout.slice(VELOCITY)] = c_n_m
         h[:, ctx.layout.slice(ATTITUDE)] = -c_n_m @ skew(column_velocity)
         h[:, ctx.layout.slice(f"{self.name}.mounting_angles")] = -self.c_b_m @ skew(v_b)
