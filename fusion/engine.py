@@ -43,7 +43,7 @@ from fusion.federated import FederatedFilter
 from fusion.filter_bank import CentralizedFilter, FilterBank
 from fusion.imu_gaps import GapBridge, bridge_imu_gaps
 from fusion.innovations import InnovationLog
-from fusion.jumps import JumpDetector, jump_states
+from fusion.jumps import JumpDetector, JumpState, jump_states
 from fusion.kalman import KalmanFilter
 from fusion.memory import release_freed_memory
 from fusion.plugin import MeasurementContext, Plugin, create_plugin
@@ -250,7 +250,11 @@ class Engine:
         )
         bank = self.filter_bank()
         states = jump_states(self.layout)
-        jumps = JumpDetector(self.layout, states, cfg.jump_detection) if states else None
+        jumps = (
+            JumpDetector(self.layout, states, cfg.jump_detection, self._tell_owner)
+            if states
+            else None
+        )
         t0, t_end = float(imu.t[0]), float(imu.t[-1])
         rate = self.config.output.rate_hz
         output_times = np.arange(t0 + 1.0 / rate, t_end + 1e-9, 1.0 / rate) if rate else np.empty(0)
@@ -446,6 +450,12 @@ class Engine:
             accel_bias=sins.accel_bias.copy(),
             travel=sins.travel.copy(),
         )
+
+    def _tell_owner(self, state: JumpState, onset: float, before: float) -> None:
+        """Pass a jump taken in to the plugin that owns the state."""
+        for plugin, blocks in zip(self.plugins, self.plugin_blocks, strict=True):
+            if any(b.name == state.block for b in blocks):
+                plugin.state_jumped(state.name, onset, before)
 
     def _update(
         self,

@@ -61,6 +61,7 @@ disagreeing with the mis-scaled odometer.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -77,13 +78,14 @@ JUMP = "jump"
 
 @dataclass(frozen=True)
 class JumpState:
-    """A state that may jump: its index in the full layout, its name for the report and the
-    value it returns to (``None``: none)."""
+    """A state that may jump: its index in the full layout, its name for the report, the value
+    it returns to (``None``: none) and the block that holds it (its plugin's)."""
 
     index: int
     name: str
     rest: float | None = None
     leaves_rest: int = 0
+    block: str = ""
 
 
 def jump_states(layout: StateLayout) -> list[JumpState]:
@@ -94,7 +96,7 @@ def jump_states(layout: StateLayout) -> list[JumpState]:
             start = layout.slice(block.name).start
             for k, label in enumerate(block.labels):
                 name = block.name if block.size == 1 else f"{block.name}.{label}"
-                states.append(JumpState(start + k, name, block.rest, block.leaves_rest))
+                states.append(JumpState(start + k, name, block.rest, block.leaves_rest, block.name))
     return states
 
 
@@ -109,14 +111,24 @@ class JumpDetector:
         The states that may jump.
     options
         Window, spacing, probability and minimum number of updates.
+    on_jump
+        Told of every jump taken in and every restart at rest, as ``(state, onset, before)``:
+        the state held the estimate ``before`` until ``onset`` and the filter's estimate from
+        then on (for a plugin whose model reads past samples through the state, see
+        :meth:`fusion.plugin.Plugin.state_jumped`).
     """
 
     def __init__(
-        self, layout: StateLayout, states: list[JumpState], options: JumpDetectionOptions
+        self,
+        layout: StateLayout,
+        states: list[JumpState],
+        options: JumpDetectionOptions,
+        on_jump: Callable[[JumpState, float, float], None] | None = None,
     ) -> None:
         self.layout = layout
         self.states = states
         self.options = options
+        self.on_jump = on_jump
         self.threshold = chi2_threshold(1, options.probability)
         self._state = np.empty(0, np.intp)  # per column: which of ``states``
         self._onset = np.empty(0)
@@ -178,9 +190,10 @@ class JumpDetector:
         if ratio[best] <= self.threshold or self._n[best] < self.options.min_updates:
             return None  # the likeliest onset has too few updates yet: wait for them
         jump, variance = self._d[best] / self._c[best], 1.0 / self._c[best]
-        bank.accommodate(best, jump, variance)
-        k, onset = int(self._state[best]), self._onset[best]
+        k, onset = int(self._state[best]), float(self._onset[best])
         state = self.states[k]
+        before = float(bank.estimate()[0][state.index])
+        bank.accommodate(best, jump, variance)
         self._keep(self._state != k, bank)
         reason = f"jumped by {jump:+.4g} ± {np.sqrt(variance):.2g} at {onset:.1f} s"
         if state.rest is not None:
@@ -190,6 +203,7 @@ class JumpDetector:
                 bank.condition(state.index, state.rest)
                 reason += f", back to rest {state.rest:g}"
             self._at_rest[k] = back
+        self._report(state, onset, before)
         return FaultEvent(t, state.name, float(ratio[best]), self.threshold, JUMP, reason)
 
     def rest(self, t: float, bank: FilterBank, name: str) -> FaultEvent | None:
@@ -204,9 +218,14 @@ class JumpDetector:
         bank.restart(state.index, state.rest, float(self._prior_variance[k]))
         self._keep(self._state != k, bank)
         self._at_rest[k] = True
+        self._report(state, t, was)
         statistic = (was - state.rest) ** 2 / sigma**2
         reason = f"back to rest {state.rest:g} at a standstill (was {was:+.4g} ± {sigma:.2g})"
         return FaultEvent(t, state.name, statistic, self.threshold, JUMP, reason)
+
+    def _report(self, state: JumpState, onset: float, before: float) -> None:
+        if self.on_jump is not None:
+            self.on_jump(state, onset, before)
 
     def _keep(self, keep: NDArray[np.bool_], bank: FilterBank) -> None:
         bank.keep_signatures(keep)

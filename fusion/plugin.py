@@ -164,6 +164,14 @@ class Plugin(ABC):
         """Extra error states this plugin owns (default: none)."""
         return ()
 
+    def state_jumped(self, state: str, onset: float, before: float) -> None:
+        """A jump of ``state``, one of this plugin's ``may_jump`` states, was taken in or the
+        state restarted at rest (:mod:`fusion.jumps`): it held the estimate ``before`` until
+        ``onset`` and holds the filter's estimate from then on. For a plugin whose measurement
+        reads earlier samples through the state (the odometer's reference speed); default:
+        ignored."""
+        return None
+
     @abstractmethod
     def epochs(self) -> NDArray[np.float64]:
         """Sorted times at which :meth:`measure` is to be called."""
