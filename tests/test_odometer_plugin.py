@@ -91,6 +91,35 @@ def test_h_matches_numerical_differentiation() -> None:
     np.testing.assert_allclose(h[:, 15:18] @ v_b, 0.0, atol=1e-15)
 
 
+def test_reference_window_split_at_a_slip() -> None:
+    """A 30 % slip from 1.0 s: once its jump is taken in (``state_jumped``), the readings of the
+    reference window are each divided by the scale of their time, so the scale column is the
+    vehicle's speed again; divided by the slipping scale alone it is 11.5 % short."""
+    speed, scale, slip = 0.8, 0.01, 0.3
+    t = np.round(np.arange(1, 21) * 0.1, 10)
+    readings = speed * (1.0 + scale + np.where(t >= 1.0, slip, 0.0))
+    rec = Recording(
+        path=None,
+        meta=recording_meta(odometer={"rate_hz": 10.0}),
+        imu=still_imu(),
+        odometer=OdometerData(t=t, speed=readings),
+    )
+    plugin = Odometer("odometer", OdometerOptions(slip_detection=True), rec)
+    layout = layout_with(plugin.state_blocks())
+    x = np.zeros(layout.dim)
+    x[layout.slice("odometer.scale_error")] = scale
+    x[layout.slice("odometer.slip")] = slip
+    ctx = perturbed_context(layout, np.zeros(layout.dim), velocity=np.zeros(3), x=x)
+    index = int(np.flatnonzero(t == 1.5)[0])  # window 0.5–1.4 s: half before the onset
+
+    def slip_column() -> float:
+        return float(plugin.measure(index, ctx).H[1, layout.slice("odometer.slip")][0])
+
+    assert slip_column() == pytest.approx(-speed * 0.885, rel=0.01)  # unsplit: 11.5 % short
+    plugin.state_jumped("odometer.slip", 1.0, 0.0)
+    assert slip_column() == pytest.approx(-speed, rel=1e-12)
+
+
 def test_zero_angular_rate_at_odometer_standstill() -> None:
     """With ``zero_angular_rate`` the encoder's stops carry a ZARU: on a static start with an
     MTi-G-700's 720 °/h turn-on bias the gyro biases, vertical included, are learned and the
