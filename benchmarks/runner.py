@@ -20,10 +20,12 @@ Scoring (per solution, errors ε = estimate − truth interpolated at the soluti
 * faults (the recording's ``meta.extra['faults']``) on a sensor that the method reads (a
   plugin of that type is enabled; dropouts and IMU gaps are not inconsistencies to detect) are
   counted in ``faults_injected``; such a fault is *detected* by the
-  first isolation of a federated local holding that sensor's plugin, or for a centralized filter
-  by the first χ²-gate rejection of that plugin, within ``[t_start, t_end + DETECTION_GRACE_S]``;
-  the delay is from ``t_start``. A *false alarm* is an isolation that no injected fault on that
-  local explains (federated filters only; a gate rejection is not an alarm).
+  first isolation of a federated local holding that sensor's plugin, by the first jump taken
+  in of one of that plugin's states (a slip, :mod:`fusion.jumps`, any architecture), or for a
+  centralized filter by the first χ²-gate rejection of that plugin, within
+  ``[t_start, t_end + DETECTION_GRACE_S]``; the delay is from ``t_start``. A *false alarm* is an
+  isolation or a jump that no injected fault on that sensor explains (federated filters only; a
+  gate rejection is not an alarm).
 """
 
 from __future__ import annotations
@@ -51,6 +53,7 @@ from fusion.attitude import dcm_from_quat, euler_from_dcm, quat_from_rotvec, wra
 from fusion.config import ConfigError, FusionConfig, find_config, load_config_data, parse_config
 from fusion.engine import Engine, RunResult
 from fusion.fault_detection import ISOLATE, READMIT
+from fusion.jumps import JUMP
 from fusion.metrics import compute_metrics, interpolate_truth
 from fusion.recording import Recording, TruthData, read_recording
 from fusion.sim.scenario import parse_override
@@ -341,7 +344,12 @@ def score_faults(
     local_types: dict[str, set[str]] = {}
     for b in blocks:
         local_types.setdefault(b.local_name, set()).add(b.type)
-    isolations = [e for e in result.faults if e.action == ISOLATE]
+    plugin_type = {b.instance_name: b.type for b in blocks}
+    for e in result.faults:
+        if e.action == JUMP:  # a jump's local is its state, named after the plugin instance
+            local_types.setdefault(e.local, {plugin_type[e.local.split(".")[0]]})
+    alarms = [e for e in result.faults if e.action in (ISOLATE, JUMP)]
+    isolations = [e for e in alarms if e.action == ISOLATE]
     used = {b.type for b in blocks}
     detectable = [f for f in injected if FAULT_SENSOR.get(f.get("type", "")) in used]
     rejections = {
@@ -355,7 +363,7 @@ def score_faults(
         sensor = FAULT_SENSOR[f["type"]]
         t0, t1 = float(f["t_start"]), float(f["t_end"]) + DETECTION_GRACE_S
         times: list[float] = []
-        for i, e in enumerate(isolations):
+        for i, e in enumerate(alarms):
             if sensor in local_types.get(e.local, set()) and t0 <= e.t <= t1:
                 explained.add(i)
                 times.append(e.t)
@@ -369,7 +377,7 @@ def score_faults(
         "faults_injected": float(len(detectable)),
         "detected_fraction": len(delays) / len(detectable) if detectable else float("nan"),
         "detect_delay_s": float(np.mean(delays)) if delays else float("nan"),
-        "false_alarms": float(len(isolations) - len(explained)) if federated else float("nan"),
+        "false_alarms": float(len(alarms) - len(explained)) if federated else float("nan"),
         "isolations": float(len(isolations)) if federated else float("nan"),
     }
 

@@ -160,6 +160,24 @@ def test_fault_scoring_federated_delay_and_false_alarms():
     assert fields["isolations"] == 2.0
 
 
+def test_fault_scoring_counts_a_slip_taken_in_as_a_jump():
+    injected = [{"type": "odometer_slip", "t_start": 100.0, "t_end": 160.0}]
+    result = _fake_result(
+        "federated",
+        [{"type": "odometer", "slip_detection": True}, {"type": "magnetometer"}],
+        faults=[
+            _event(40.0, "odometer.slip", "jump"),  # no slip injected then: false alarm
+            _event(100.3, "odometer.slip", "jump"),  # the onset, 0.3 s late
+            _event(160.2, "odometer.slip", "jump"),  # the end
+        ],
+    )
+    fields = score_faults(injected, result)
+    assert fields["detected_fraction"] == 1.0
+    assert fields["detect_delay_s"] == pytest.approx(0.3)
+    assert fields["false_alarms"] == 1.0
+    assert fields["isolations"] == 0.0
+
+
 def test_fault_scoring_centralized_uses_gate_rejections():
     injected = [{"type": "odometer_slip", "t_start": 100.0, "t_end": 160.0}]
     log = InnovationLog()
