@@ -38,9 +38,11 @@ hypothesis of that state is then dropped, and the event is reported in ``faults.
 ``jump``).
 
 A state may have a *rest* value it returns to exactly (a slip ratio is 0 once the wheel grips
-again). A jump that brings it back within 3σ of rest is taken in as above and the state is then
-set to rest by conditioning on ``x_j = rest`` (a Kalman update with H = e_jᵀ and a negligible R),
-which also moves the states correlated with it: the slip estimated during the episode is
+again). A jump that brings it back within 3σ of rest — or past rest, for a state that leaves rest
+in one direction only and so cannot be on the other side (a slip whose onset was estimated short
+ends in a jump that overshoots zero) — is taken in as above and the state is then set to rest
+by conditioning on ``x_j = rest`` (a Kalman update with H = e_jᵀ and a negligible R), which
+also moves the states correlated with it: the slip estimated during the episode is
 replaced by the known end value, and the velocity and position it had been traded against are
 corrected with it. A state may also leave rest in one direction only (``leaves_rest``): a
 slip whose onset went undetected (slow, at a crawl) ends in what looks like a jump the other
@@ -198,7 +200,9 @@ class JumpDetector:
         reason = f"jumped by {jump:+.4g} ± {np.sqrt(variance):.2g} at {onset:.1f} s"
         if state.rest is not None:
             x, p = bank.estimate()
-            back = abs(x[state.index] - state.rest) <= 3.0 * np.sqrt(p[state.index, state.index])
+            offset = x[state.index] - state.rest
+            within = abs(offset) <= 3.0 * np.sqrt(p[state.index, state.index])
+            back = within or state.leaves_rest * offset < 0  # past rest: it cannot be there
             if back:
                 bank.condition(state.index, state.rest)
                 reason += f", back to rest {state.rest:g}"

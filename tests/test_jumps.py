@@ -119,6 +119,44 @@ def test_a_slip_is_taken_in_and_its_end_sets_the_state_back_to_rest() -> None:
     assert abs(bank.kf.x[0] - truth[0]) < 3.0 * np.sqrt(bank.kf.P[0, 0])
 
 
+@pytest.mark.parametrize("leaves_rest", [0, 1])
+def test_an_end_past_rest_is_back_at_rest_for_a_one_way_state(leaves_rest: int) -> None:
+    """A 30 % slip whose onset was taken in 0.2 short (set here by hand; the toy's σ_Δ is 0.04):
+    its end is a jump of ≈ −0.3 that leaves ŝ ≈ −0.2. A slip ratio cannot be negative, so a
+    state that leaves rest upwards only is back at rest there (set exactly to 0); a two-way
+    state stays below zero."""
+    rng = np.random.default_rng(8)
+    layout = StateLayout(
+        (
+            StateBlock("velocity", ("v",), (0.01,)),
+            StateBlock("position", ("p",), (0.01,)),
+            StateBlock(
+                "wheel.slip", ("s",), (1e-4,), may_jump=True, rest=0.0, leaves_rest=leaves_rest
+            ),
+        )
+    )
+    bank = CentralizedFilter(layout)
+    detector = JumpDetector(layout, jump_states(layout), JumpDetectionOptions())
+    truth, events = np.zeros(3), []
+    for k in range(400):
+        truth[2] = 0.3 if 100 <= k < 250 else 0.0
+        bank.predict(PHI, QD)
+        detector.step(k * DT, bank)
+        if k == 120:  # the onset estimated short, the speed long: the same z, nothing to detect
+            bank.kf.x[2] -= 0.2
+            bank.kf.x[0] += 0.2 * SPEED
+        z = H @ truth + rng.normal(0.0, SPEED_NOISE, 1)
+        signature = detector.innovation_signature(bank, 0, H)
+        event = detector.observe(k * DT, bank, 0, signature, bank.kf.update(z, H, R))
+        if event is not None:
+            events.append(event.reason)
+    assert len(events) == 2, events
+    if leaves_rest:
+        assert "back to rest" in events[1] and bank.kf.x[2] == pytest.approx(0.0, abs=1e-9)
+    else:
+        assert "back to rest" not in events[1] and bank.kf.x[2] < -0.1
+
+
 def test_no_jump_without_a_slip() -> None:
     rng = np.random.default_rng(9)
     _, _, events, _ = _toy_run(rng, (0, 0, 0.0), JumpDetectionOptions(), 3000)
