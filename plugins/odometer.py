@@ -15,13 +15,12 @@ and the true ``v^m = [0, s̃ (1 − δk_D), 0]``. The measurement (mode ``odomet
     H = [C_b^m C_n^b,  −C_b^m C_n^b (v^n×),  0,  0,  0,  …,  −C_b^m (v^b×),  [0, −v^m_y, 0]ᵀ]
 
 where the attitude and parameter columns take the vehicle velocity ``v^m = [0, s̄ / (1 + δk̂_D),
-0]`` (``v^n = C_b^n C_m^b v^m``) with s̄ the mean of the readings in the ``reference_window_s``
-(1 s) *before* this one (zero within 3σ of standstill): the SINS velocity and this reading both
-carry errors that are also in z, and a column correlated with its own residual biases the
-estimates (see ``_reference_speed``). The SINS velocity in the attitude columns also carried
-the cutting vibration that is in z: with the encoder's 2–3 mm/s as R, yaw RMS(ε/σ) 2.4 against
-2.1 at the reference (``longwall-200m``, 8 seeds of 300 s; see also
-``filter.specific_force_time_constant_s`` in :mod:`fusion.error_model`). Without an odometer
+0]`` (``v^n = C_b^n C_m^b v^m``) with s̄ a mean of readings *before* this one: of a 10-s window
+ending 2 s earlier while the speed is steady, of the last second while it changes, zero within
+3σ of standstill (:mod:`plugins.reference_speed`, which says why). The SINS velocity in the
+attitude columns also carried the cutting vibration that is in z: with the encoder's 2–3 mm/s
+as R, yaw RMS(ε/σ) 2.4 against 2.1 at the reference (``longwall-200m``, 8 seeds of 300 s; see
+also ``filter.specific_force_time_constant_s`` in :mod:`fusion.error_model`). Without an odometer
 (mode ``motion_constraint``) the attitude columns keep the SINS velocity: the zeroed velocity of
 ``_constrained_velocity`` there cost the real car drive of ``benchmarks real`` 30 m instead of
 23 m mean drift over 60-s outages.
@@ -81,6 +80,7 @@ from fusion.attitude import dcm_from_euler, skew
 from fusion.error_model import ATTITUDE, VELOCITY, StateBlock
 from fusion.plugin import Measurement, MeasurementContext, Plugin, PluginOptions
 from fusion.recording import Recording
+from plugins.reference_speed import ReferenceSpeed
 from plugins.zaru import ZeroAngularRate
 
 SLIP_PRIOR_SIGMA = 1e-4  # no slip at the start; a jump opens it (fusion.jumps)
@@ -110,8 +110,16 @@ class OdometerOptions(PluginOptions):
     reference_window_s: float = Field(
         1.0,
         gt=0,
-        description="the parameter and attitude columns take the mean odometer speed of this"
-        " window before the reading (not the reading itself: see Odometer._reference_speed)",
+        description="while the speed changes, the parameter and attitude columns take the mean"
+        " odometer speed of this window before the reading (plugins.reference_speed)",
+    )
+    steady_window_s: float = Field(
+        10.0,
+        ge=0,
+        description="while the speed is steady they take the mean of this window (0: never)",
+    )
+    steady_lag_s: float = Field(
+        2.0, ge=0, description="the steady window ends this long before the reading"
     )
     rest_guard_s: float = Field(
         1.0, ge=0, description="standstill this long before a ZARU or ending a slip"
@@ -124,6 +132,15 @@ class OdometerOptions(PluginOptions):
     def _zero_rate_needs_odometer(self) -> OdometerOptions:
         if self.zero_angular_rate and self.mode != "odometer":
             raise ValueError("zero_angular_rate needs mode: odometer (the encoder shows the stops)")
+        return self
+
+    @model_validator(mode="after")
+    def _windows_apart(self) -> OdometerOptions:
+        if self.steady_window_s > 0 and self.steady_lag_s < self.reference_window_s:
+            raise ValueError(
+                f"steady_lag_s ({self.steady_lag_s}) must be at least reference_window_s "
+                f"({self.reference_window_s}): the steady and short windows must not overlap"
+            )
         return self
 
 
@@ -146,9 +163,13 @@ class Odometer(Plugin):
         self.c_b_m = dcm_from_euler(r, p, y).T
         self.speed = recording.odometer.speed if recording.odometer is not None else np.empty(0)
         self.still = np.abs(self.speed) < 3.0 * options.sigma_speed_mps  # within 3σ of zero
-        self.window_first = self._window_first()
-        self.reference_speed = self._lagged_mean_speed()
-        self._slip_onsets: list[tuple[float, float]] = []  # (onset, slip estimate before it)
+        self.reference = ReferenceSpeed(
+            recording.odometer.t if recording.odometer is not None else np.empty(0),
+            self.speed,
+            options.reference_window_s,
+            options.steady_window_s,
+            options.steady_lag_s,
+        )
         self.rows = np.array([0, 1, 2]) if self.use_speed else np.array([0, 2])
         self.variance = (
             np.array(
@@ -167,23 +188,6 @@ class Odometer(Plugin):
             else np.empty(0, bool)
         )
         self._travel: tuple[int, NDArray[np.float64]] | None = None  # at the last reading
-
-    def _window_first(self) -> NDArray[np.intp]:
-        """Index of the first reading in the ``reference_window_s`` before each reading (the
-        previous one if that is older)."""
-        if self.recording.odometer is None:
-            return np.empty(0, np.intp)
-        t = self.recording.odometer.t
-        first = np.searchsorted(t, t - self.options.reference_window_s, side="left")
-        return np.minimum(first, np.maximum(np.arange(t.size) - 1, 0))
-
-    def _lagged_mean_speed(self) -> NDArray[np.float64]:
-        """Mean of the readings in the ``reference_window_s`` before each reading (not it)."""
-        last = np.arange(self.speed.size)
-        total = np.concatenate([[0.0], np.cumsum(self.speed)])
-        count = np.maximum(last - self.window_first, 1)
-        mean: NDArray[np.float64] = (total[last] - total[self.window_first]) / count
-        return mean
 
     def _standstill(self) -> NDArray[np.bool_]:
         """Readings preceded by ``rest_guard_s`` of readings within 3σ of zero (this one too)."""
@@ -248,7 +252,8 @@ class Odometer(Plugin):
         if self.use_speed:
             scale_states = self._scale_states(ctx)
             measured[1] = self.speed[index]
-            speed = self._reference_speed(index, ctx.x[scale_states])
+            self.reference.travel[index] = ctx.travel
+            speed = self._reference_speed(index, ctx.x[scale_states], c_n_m[1])
             v_b = self.c_b_m.T @ np.array([0.0, speed, 0.0])
             column_velocity = ctx.c_b_n @ v_b  # attitude columns at the encoder's reference
         else:
@@ -295,54 +300,20 @@ class Odometer(Plugin):
         mean: NDArray[np.float64] = (ctx.travel - previous[1]) / (t[index] - t[index - 1])
         return mean
 
-    def _reference_speed(self, index: int, scale: NDArray[np.float64]) -> float:
-        """Vehicle speed at which the parameter and attitude columns are evaluated: the mean of
-        the readings in the ``reference_window_s`` before this one, each corrected by the scale
-        in effect when it was read (``scale``: the estimates of δk_D and, with slip detection,
-        s); zero when the previous reading is within 3σ of standstill.
-
-        A slip's onset or end inside the window splits it: the readings before the jump are
-        divided by ``1 + δk_D + s_before`` (:meth:`state_jumped`), not by the new estimate.
-        Corrected by the new estimate alone, the first second after a 30 % slip was taken in
-        had columns 20 % short, a residual of 5 cm/s (NIS 22), and the filter moved the
-        position 1.2 m along the track to explain it (``seed003-brokenline`` seed 2,
-        sins_od_mag_afkf: worst horizontal 5.5 m against 3.3 m without the slip; 3.4 m with
-        the readings split at the onset).
-
-        Not the SINS velocity and not this sample's reading: both carry errors that also enter
-        this epoch's z, and a column correlated with its own residual makes every update push
-        the scale and mounting estimates the same way (at standstill the scale walked to −0.05
-        against a true +0.01). Not the previous reading alone either: an encoder that shakes
-        with the cutting vibration has noise correlated over a few samples; a mean over a
-        window of many vibration periods carries neither the noise nor its correlation.
-        The window's readings are also in the filter's velocity estimate, through the
-        corrections they made, so the column is still correlated with z. At a constant speed
-        δk_D and the velocity along the track are one unobservable direction, ``[v, 1]``, and
-        with R at the encoder's noise that correlation walks the pair along it (ideal IMU,
-        2 mm/s encoder and R, the MTi's angle random walk in Q, ``longwall-200m``: δk_D
-        −0.108 ± 0.027 after 400 s, truth 0). At the shipped 1 cm/s it stays inside 1σ. A
-        reference held while the speed is steady stops the walk but, held to 10 % of the
-        speed, cost full_ckf 40 % of its horizontal accuracy on ``longwall-200m``; held to 1 %
-        it no longer stops the walk (closing note of 2026-11-25).
-        """
+    def _reference_speed(
+        self, index: int, scale: NDArray[np.float64], along: NDArray[np.float64]
+    ) -> float:
+        """Vehicle speed of the parameter and attitude columns (:mod:`plugins.reference_speed`)
+        with the scale estimates ``scale`` (δk_D and, with slip detection, s) and the travel
+        axis ``along`` in n; zero when the previous reading is within 3σ of standstill."""
         if self.still[max(index - 1, 0)]:
             return 0.0
-        first = int(self.window_first[index])
-        t = self.recording.odometer.t  # type: ignore[union-attr]
-        if first >= index or not any(onset > t[first] for onset, _ in self._slip_onsets):
-            return float(self.reference_speed[index] / (1.0 + scale.sum()))
-        times = t[first:index]
-        slip = np.full(times.size, scale[1])
-        pending = np.ones(times.size, bool)
-        for onset, before in self._slip_onsets:  # in time order: the first later onset decides
-            earlier = pending & (times < onset - 1e-9)
-            slip[earlier] = before
-            pending &= ~earlier
-        return float(np.mean(self.speed[first:index] / (1.0 + scale[0] + slip)))
+        slip = float(scale[1]) if scale.size > 1 else 0.0
+        return self.reference.at(index, float(scale[0]), slip, along)
 
     def state_jumped(self, state: str, onset: float, before: float) -> None:
-        """Remember a slip's onset or end: the reference window splits there."""
-        self._slip_onsets.append((onset, before))
+        """A slip's onset or end: the reference window splits there."""
+        self.reference.jumped(onset, before)
 
     def _scale_states(self, ctx: MeasurementContext) -> list[int]:
         """Indices of δk_D and, with slip detection, s in the filter's layout."""
