@@ -402,8 +402,17 @@ def test_cpoem_reduces_cycle_2_to_4_error(
 @pytest.mark.slow
 def test_consistency_over_20_seeds(mems_runs: list[CarrierRun]) -> None:
     """Position RMS(err/σ) < 1.5 per axis over 20 seeds; the CPOEM innovations are never
-    optimistic (whitened RMS ≤ 1.3; the interior points' R is conservative by construction)."""
+    optimistic (whitened RMS ≤ 1.3). They are pessimistic: RMS 0.21 (2026-11-26), below the
+    issue's 0.7. R is the previous pass's σ of the stored point plus the current σ, as if
+    their errors were independent; they share most of it (the same scale, mounting and bias
+    errors at the same place on the face), so the innovation — their difference — is far
+    smaller. Tracking that correlation needs the stored point as a state (stochastic cloning),
+    which the fixed state layout does not have."""
     squared = np.concatenate([r.squared_normalized for r in mems_runs])
     assert np.all(np.sqrt(squared.mean(axis=0)) < 1.5)
     nis, dof = np.sum([r.nis_dof for r in mems_runs], axis=0)
+    print(
+        f"CPOEM whitened RMS {np.sqrt(nis / dof):.3f}, position RMS(err/σ)",
+        np.round(np.sqrt(squared.mean(axis=0)), 3),
+    )
     assert np.sqrt(nis / dof) <= 1.3  # RMS of the whitened components (‖w‖² = NIS)
