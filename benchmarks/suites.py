@@ -462,8 +462,9 @@ def ablation_tables() -> list[TableSpec]:
             Column("nees_rms", "RMS(ε/σ), nominal", 2, group="nominal"),
             Column("false_alarms", "false alarms, nominal", 1, group="nominal"),
         ),
-        note="delay from the fault onset to the first isolation (federated) or χ²-gate rejection"
-        " (centralized); — where the fault was not detected or the sensor is not used",
+        note="delay from the fault onset to the first isolation (federated), jump taken in (a"
+        " slip, any architecture) or χ²-gate rejection (centralized); — where the fault was not"
+        " detected or the sensor is not used",
     )
     return [rms, worst, detect]
 
