@@ -20,9 +20,8 @@ from plugins.odometer import Odometer, OdometerOptions
 from plugins.reference_speed import ReferenceSpeed
 from tests.plugin_support import (
     SEED002_SPEC,
-    group_rms,
     layout_with,
-    normalized_errors,
+    monte_carlo,
     perturbed_context,
     recording_meta,
     static_recording,
@@ -245,29 +244,14 @@ def test_monte_carlo_consistency(tmp_path: Path) -> None:
     horizontal error (0.27 m against 0.38 m on 8 of these seeds): README, "Odometer noise"."""
     config = _with_odometer_sigma(load_config(CONFIGS / "sins_od_ckf.yaml"), ENCODER_SIGMA)
     free = load_config(CONFIGS / "sins_only.yaml")
-    ratios, whitened, aided, unaided = [], [], [], []
-    for seed in range(N_SEEDS):
-        rec = read_recording(
-            simulate("longwall-200m", tmp_path / f"seed{seed}", seed=seed, overrides=SHORT_RUN)
-        )
-        assert rec.truth is not None
-        result, r = normalized_errors(config, rec, lambda index, _: index % 10 == 0)
-        ratios.append(r)
-        whitened.append(result.innovations["odometer"].whitened_rms())
-        aided.append(compute_metrics(result.solution, rec.truth)["horizontal_rms"])
-        unaided.append(
-            compute_metrics(Engine(free, rec).run().solution, rec.truth)["horizontal_rms"]
-        )
-    r = np.concatenate(ratios)
-    rms = group_rms(r)
-    pooled = float(np.sqrt(np.mean(np.square(whitened))))
-    print("whitened RMS per run:", np.round(whitened, 3), f"pooled {pooled:.3f}")
-    print("RMS(err/σ):", {g: round(v, 3) for g, v in rms.items()})
-    print(f"horizontal RMS: {np.mean(aided):.3f} m aided, {np.mean(unaided):.0f} m free")
+    runs = monte_carlo(config, free, "longwall-200m", tmp_path, N_SEEDS, SHORT_RUN)
+    runs.report()
+    pooled = float(np.sqrt(np.mean(np.square(runs.whitened))))
+    print(f"pooled whitened RMS {pooled:.3f}")
     assert 0.7 <= pooled <= 1.3
-    for group, value in rms.items():
+    for group, value in runs.rms.items():
         assert value < 1.5, (group, value)
-    assert max(aided) < 1e-3 * min(unaided)
+    assert runs.aided.max() < 1e-3 * runs.unaided.min()
 
 
 ENCODER_SIGMA = load_scenario("longwall-200m").odometer.noise_sigma_mps

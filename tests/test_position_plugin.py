@@ -10,16 +10,12 @@ import pytest
 
 from fusion.attitude import dcm_from_euler
 from fusion.config import load_config, parse_config
-from fusion.engine import Engine
-from fusion.metrics import compute_metrics
-from fusion.recording import PositionData, Recording, read_recording
-from fusion.sim.simulate import simulate
+from fusion.recording import PositionData, Recording
 from plugins.position import PositionFixes, PositionOptions
 from tests.plugin_support import (
     FRAME,
-    group_rms,
     layout_with,
-    normalized_errors,
+    monte_carlo,
     numerical_jacobian,
     perturbed_context,
     recording_meta,
@@ -83,24 +79,9 @@ def test_monte_carlo_consistency(tmp_path: Path) -> None:
     data["name"], data["plugins"] = "sins_position", [{"type": "position"}]
     config = parse_config(data)
     free = load_config(CONFIGS / "sins_only.yaml")
-    ratios, whitened, aided, unaided = [], [], [], []
-    for seed in range(20):
-        rec = read_recording(
-            simulate("seed002-rectangle", tmp_path / f"seed{seed}", seed=seed, overrides=[FIXES])
-        )
-        assert rec.truth is not None
-        result, r = normalized_errors(config, rec, lambda index, _: index % 10 == 0)
-        ratios.append(r)
-        whitened.append(result.innovations["position"].whitened_rms())
-        aided.append(compute_metrics(result.solution, rec.truth)["horizontal_rms"])
-        unaided.append(
-            compute_metrics(Engine(free, rec).run().solution, rec.truth)["horizontal_rms"]
-        )
-    rms = group_rms(np.concatenate(ratios))
-    print("whitened RMS per run:", np.round(whitened, 3))
-    print("RMS(err/σ):", {g: round(v, 3) for g, v in rms.items()})
-    print(f"horizontal RMS: {np.mean(aided):.3f} m aided, {np.mean(unaided):.0f} m free")
-    assert np.all((np.array(whitened) >= 0.7) & (np.array(whitened) <= 1.3)), whitened
-    for group, value in rms.items():
+    runs = monte_carlo(config, free, "seed002-rectangle", tmp_path, 20, [FIXES])
+    runs.report()
+    assert np.all((runs.whitened >= 0.7) & (runs.whitened <= 1.3)), runs.whitened
+    for group, value in runs.rms.items():
         assert value < 1.5, (group, value)
-    assert max(aided) < 1e-2 * min(unaided)
+    assert runs.aided.max() < 1e-2 * runs.unaided.min()
