@@ -73,8 +73,9 @@ def test_monte_carlo_consistency(tmp_path: Path) -> None:
     attitude and position, and the fixes hold the position where the free SINS drifts away.
 
     On ``longwall-200m`` (300 s, a straight pass at 0.1 m/s) the same fixes leave the yaw
-    overconfident (RMS(err/σ) 2.9 over 4 seeds; 3.7 without the lever arm): the heading there
-    is seen only through the vibration and the 0.02 m/s² ramps."""
+    overconfident (RMS(err/σ) 2.9 over 4 seeds with F's specific force low-passed at 1 s; 3.7
+    without the lever arm): the heading there is seen only through the vibration and the
+    0.02 m/s² ramps."""
     data = load_config(CONFIGS / "sins_mc.yaml").model_dump()
     data["name"], data["plugins"] = "sins_position", [{"type": "position"}]
     config = parse_config(data)
