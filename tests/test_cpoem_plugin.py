@@ -403,11 +403,11 @@ def test_cpoem_reduces_cycle_2_to_4_error(
 def test_consistency_over_20_seeds(mems_runs: list[CarrierRun]) -> None:
     """Position RMS(err/σ) < 1.5 per axis over 20 seeds; the CPOEM innovations are never
     optimistic (whitened RMS ≤ 1.3). They are pessimistic: RMS 0.21 (2026-11-26), below the
-    issue's 0.7. R is the previous pass's σ of the stored point plus the current σ, as if
-    their errors were independent; they share most of it (the same scale, mounting and bias
-    errors at the same place on the face), so the innovation — their difference — is far
-    smaller. Tracking that correlation needs the stored point as a state (stochastic cloning),
-    which the fixed state layout does not have."""
+    issue's 0.7, by construction (plugins/cpoem.py): an interior point's error is the filter's
+    own error at the earlier visit, correlated along the face and with the current error, so
+    the n interior points of a pass are weighted as one (R × n), which puts their whitened
+    innovations near 1/√n. The exact treatment, each stored point cloned into the state with
+    its cross-covariance (stochastic cloning), is not done."""
     squared = np.concatenate([r.squared_normalized for r in mems_runs])
     assert np.all(np.sqrt(squared.mean(axis=0)) < 1.5)
     nis, dof = np.sum([r.nis_dof for r in mems_runs], axis=0)
