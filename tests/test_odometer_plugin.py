@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from fusion.attitude import dcm_from_euler, dcm_from_quat, quat_from_rotvec
+from fusion.attitude import dcm_from_euler, dcm_from_quat, quat_from_rotvec, skew
 from fusion.config import FusionConfig, load_config, parse_config
 from fusion.engine import Engine
 from fusion.metrics import compute_metrics
@@ -148,6 +148,26 @@ def test_reference_speed_steady_window() -> None:
     assert speed_up == pytest.approx(short, abs=1e-12) and speed_up > 0.65
     slipping, _ = _steady_then(np.full(15, 0.65), np.full(15, 0.5))
     assert slipping == pytest.approx(0.5, abs=0.0015)
+
+
+def test_constraint_attitude_columns_wait_for_a_speed_clear_of_its_uncertainty() -> None:
+    """Mode motion_constraint: the attitude columns are −C (v×) at the SINS velocity while its
+    speed exceeds its 1σ along it, and zero below (a drift at a standstill is no direction)."""
+    rec = Recording(path=None, meta=recording_meta(), imu=still_imu(), odometer=None)
+    plugin = Odometer("mc", OdometerOptions(mode="motion_constraint"), rec)
+    layout = layout_with(plugin.state_blocks())
+    velocity = np.array([0.0, 0.5, 0.0])
+    attitude = layout.slice("attitude")
+    for sigma_along, moving in ((0.4, True), (0.6, False)):
+        covariance = np.eye(layout.dim) * 1e-6
+        north = layout.slice("velocity").start + 1
+        covariance[north, north] = sigma_along**2
+        ctx = perturbed_context(
+            layout, np.zeros(layout.dim), velocity=velocity, covariance=covariance
+        )
+        columns = plugin.measure(0, ctx).H[:, attitude]
+        expected = -(plugin.c_b_m @ ctx.c_b_n.T @ skew(velocity))[[0, 2]]  # rows x, z
+        np.testing.assert_allclose(columns, expected if moving else 0.0, atol=1e-12)
 
 
 def test_zero_angular_rate_at_odometer_standstill() -> None:
