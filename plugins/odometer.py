@@ -186,7 +186,6 @@ class Odometer(Plugin):
             if self.zero_rate is not None or options.slip_detection
             else np.empty(0, bool)
         )
-        self._travel: tuple[int, NDArray[np.float64]] | None = None  # at the last reading
 
     def _standstill(self) -> NDArray[np.bool_]:
         """Readings preceded by ``rest_guard_s`` of readings within 3σ of zero (this one too)."""
@@ -251,7 +250,6 @@ class Odometer(Plugin):
         if self.use_speed:
             scale_states = self._scale_states(ctx)
             measured[1] = self.speed[index]
-            self.reference.travel[index] = ctx.travel
             speed = self._reference_speed(index, ctx.x[scale_states], c_n_m[1])
             v_b = self.c_b_m.T @ np.array([0.0, speed, 0.0])
             column_velocity = ctx.c_b_n @ v_b  # attitude columns at the encoder's reference
@@ -316,11 +314,12 @@ class Odometer(Plugin):
         reading; the velocity at the epoch when that reading was not measured."""
         if not self.use_speed:
             return ctx.velocity
-        previous, self._travel = self._travel, (index, ctx.travel)
-        if previous is None or previous[0] != index - 1:
+        travel = self.reference.travel  # the SINS travel at every reading measured so far
+        travel[index] = ctx.travel
+        if index == 0 or np.isnan(travel[index - 1, 0]):
             return ctx.velocity
         t = self.recording.odometer.t  # type: ignore[union-attr]
-        mean: NDArray[np.float64] = (ctx.travel - previous[1]) / (t[index] - t[index - 1])
+        mean: NDArray[np.float64] = (ctx.travel - travel[index - 1]) / (t[index] - t[index - 1])
         return mean
 
     def _reference_speed(

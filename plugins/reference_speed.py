@@ -143,7 +143,7 @@ class ReferenceSpeed:
         first, last = int(window[0][index]), int(window[1][index])
         if last <= first:
             return 0.0
-        if not any(onset > self.t[first] for onset, _ in self._onsets):
+        if not self._onsets or self._onsets[-1][0] <= self.t[first]:  # onsets in time order
             return float(self._total[last] - self._total[first]) / (
                 (last - first) * (1.0 + scale_error + slip)
             )

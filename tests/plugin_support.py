@@ -29,6 +29,7 @@ from fusion.error_model import G0, ImuNoise, StateBlock, StateLayout, common_blo
 from fusion.metrics import compute_metrics, interpolate_truth
 from fusion.plugin import Measurement, MeasurementContext
 from fusion.recording import ImuData, Recording, RecordingMeta, read_recording
+from fusion.sim.simulate import simulate
 
 FRAME = LocalFrame(34.0, 117.0, 40.0)
 SEED002_SPEC = {  # seed 002 Table 1, as the simulator's "seed002-mems" grade writes it to meta.yaml
@@ -239,8 +240,6 @@ def monte_carlo(
 ) -> MonteCarlo:
     """Run ``config`` (its first plugin the one under test) and ``free`` on ``seeds`` seeded
     simulations of ``scenario``; err/σ taken at every tenth epoch of the plugin."""
-    from fusion.sim.simulate import simulate  # the simulator only where a test runs it
-
     ratios, whitened, aided, unaided = [], [], [], []
     name = config.plugins[0].instance_name
     for seed in range(seeds):
