@@ -16,6 +16,29 @@ dynamics without a measurement input, ``E ← Φ E`` and ``E ← (I − K H) E``
 a unit jump of one state is the part of that jump the filter has not yet absorbed (the
 generalized-likelihood-ratio signature of :mod:`fusion.jumps`). Closed-loop feedback moves the
 estimate into the SINS but leaves the columns alone.
+
+*Stored errors* (stochastic cloning without refinement, Schmidt style). A plugin that stores an
+estimate of the filter (CPOEM's optimal points) and later measures against it makes that
+estimate's error ``e`` part of a later measurement's noise, ``w = v + B e_c`` (``e_c`` the stored
+errors in ``columns``, :class:`CorrelatedNoise`). The filter tracks ``C = Cov(ε, e)`` of its
+estimation error ε = x − x̂ (the true error state minus its estimate) with every stored error
+(``cross``, n × m) and ``D = Cov(e, e)`` (``stored_covariance``, m × m). Storing ``e_c = H_s ε``
+(:meth:`KalmanFilter.store_error`) sets ``C_c = P H_sᵀ``, ``D_cc = H_s P H_sᵀ`` and
+``D_c· = H_s C``. With ``M = Cov(ε, w) = C_c Bᵀ`` an update is ::
+
+    S = H P Hᵀ + R + H M + Mᵀ Hᵀ,   K = (P Hᵀ + M) S⁻¹
+    P ← (I − K H) P (I − K H)ᵀ + K R Kᵀ − (I − K H) M Kᵀ − K Mᵀ (I − K H)ᵀ
+    C ← (I − K H) C − K B D_c·
+
+(``R`` includes ``B D_cc Bᵀ``); every other update is the special case ``M = 0``,
+``C ← (I − K H) C``, and a time step ``C ← Φ C``. Feedback leaves ε, hence C, unchanged.
+
+A federated local's ``P`` counts its information 1/β_i times; what its updates add must be the
+measurement's own information for the fusion to be exact, and a noise correlated with the state
+error is not that. Given its error's covariance P_u (``statistic_covariance``, the unit share),
+the local applies instead the equivalent measurement with independent noise: the regression of
+w on ε taken out, ``G = P_u⁻¹ M``, ``z' = z + Gᵀ x̂``, ``H' = H + Gᵀ``, ``R' = R − Mᵀ G`` (the same
+innovation and S), with ``Cov(w', e) = B D_c· − Gᵀ C`` in the update of C.
 """
 
 from __future__ import annotations
@@ -34,6 +57,22 @@ from numpy.typing import NDArray
 def chi2_threshold(dof: int, probability: float) -> float:
     """χ² quantile: the NIS below which a consistent measurement falls with ``probability``."""
     return float(scipy.stats.chi2.ppf(probability, dof))
+
+
+@dataclass(frozen=True)
+class CorrelatedNoise:
+    """A measurement's noise carries stored errors: ``w = v + B e[columns]`` (module docstring).
+
+    Attributes
+    ----------
+    columns
+        Indices of the stored errors (``KalmanFilter.cross`` columns).
+    mixing
+        B, (measurement dimension × len(columns)).
+    """
+
+    columns: NDArray[np.intp]
+    mixing: NDArray[np.float64]
 
 
 @dataclass(frozen=True)
@@ -78,12 +117,19 @@ class KalmanFilter:
         Initial state (n,).
     p
         Initial covariance (n, n).
+    stored_errors
+        Number m of stored-error variables tracked (module docstring), uncorrelated and zero
+        until stored.
     """
 
-    def __init__(self, x: NDArray[np.float64], p: NDArray[np.float64]) -> None:
+    def __init__(
+        self, x: NDArray[np.float64], p: NDArray[np.float64], stored_errors: int = 0
+    ) -> None:
         self.x = np.array(x, dtype=float)
         self.P = np.array(p, dtype=float)
         self.signatures = np.zeros((self.dim, 0))
+        self.cross = np.zeros((self.dim, stored_errors))
+        self.stored_covariance = np.zeros((stored_errors, stored_errors))
         self._identity = np.eye(self.dim)
 
     @property
@@ -91,11 +137,24 @@ class KalmanFilter:
         """State dimension."""
         return int(self.x.shape[0])
 
+    @property
+    def columns(self) -> NDArray[np.float64]:
+        """Every column that follows the estimate's linear dynamics: the signatures, then the
+        stored errors' cross-covariances (a copy; assigning splits it back)."""
+        return np.hstack([self.signatures, self.cross])
+
+    @columns.setter
+    def columns(self, value: NDArray[np.float64]) -> None:
+        k = self.signatures.shape[1]
+        self.signatures, self.cross = value[:, :k].copy(), value[:, k:].copy()
+
     def predict(self, phi: NDArray[np.float64], qd: NDArray[np.float64]) -> None:
         """Time update with transition ``phi`` and discrete process noise ``qd``."""
         self.x = phi @ self.x
         if self.signatures.shape[1]:
             self.signatures = phi @ self.signatures
+        if self.cross.shape[1]:
+            self.cross = phi @ self.cross
         p = phi @ self.P @ phi.T + qd
         self.P = 0.5 * (p + p.T)
 
@@ -106,21 +165,35 @@ class KalmanFilter:
         r: NDArray[np.float64],
         gate_probability: float | None = None,
         statistic_covariance: NDArray[np.float64] | None = None,
+        correlated: CorrelatedNoise | None = None,
     ) -> UpdateResult:
         """Measurement update (see module docstring); ``z`` (m,), ``h`` (m, n), ``r`` (m, m).
 
         ``statistic_covariance`` (default: ``P``) is the state covariance against which the
         innovation is whitened and gated, S = H P' Hᵀ + R; the gain always uses ``P``. A
         federated local passes its covariance at unit share (:mod:`fusion.federated`): its own
-        ``P`` is inflated by 1/β_i and would make every test 1/β_i too lenient.
+        ``P`` is inflated by 1/β_i and would make every test 1/β_i too lenient. ``correlated``:
+        the noise carries stored errors (``R`` their part included).
         """
         z = np.atleast_1d(np.asarray(z, dtype=float))
         h = np.ascontiguousarray(np.atleast_2d(h), dtype=float)
         r = np.ascontiguousarray(np.atleast_2d(r), dtype=float)
-        nu, chol, ph_t = _innovation(self.x, self.P, z, h, r)
+        r_innovation, cov_state_noise, noise_with_stored = r, None, None
+        if correlated is not None:
+            cov_state_noise = self.cross[:, correlated.columns] @ correlated.mixing.T  # M
+            noise_with_stored = correlated.mixing @ self.stored_covariance[correlated.columns]
+            if statistic_covariance is not None:
+                z, h, r, noise_with_stored = self._decorrelated(
+                    z, h, r, cov_state_noise, noise_with_stored, statistic_covariance
+                )
+                r_innovation, cov_state_noise = r, None
+            else:
+                hm = h @ cov_state_noise
+                r_innovation = r + hm + hm.T
+        nu, chol, ph_t = _innovation(self.x, self.P, z, h, r_innovation)
         whitening = chol
         if statistic_covariance is not None:
-            whitening = _s_cholesky(statistic_covariance, h, r)[0]
+            whitening = _s_cholesky(statistic_covariance, h, r_innovation)[0]
         whitened = _forward_substitution(whitening, nu)
         nis = float(whitened @ whitened)
         threshold = None
@@ -128,10 +201,59 @@ class KalmanFilter:
             threshold = chi2_threshold(len(z), gate_probability)
             if nis > threshold:
                 return UpdateResult(False, nu, whitened, nis, threshold, whitening)
+        if cov_state_noise is not None:
+            ph_t = ph_t + cov_state_noise
         self.x, self.P, gain = _joseph(self.x, self.P, nu, chol, ph_t, h, r, self._identity)
         if self.signatures.shape[1]:
             self.signatures = self.signatures - gain @ (h @ self.signatures)
+        if self.cross.shape[1]:
+            self.cross = self.cross - gain @ (h @ self.cross)
+        if cov_state_noise is not None:
+            term = (self._identity - gain @ h) @ cov_state_noise @ gain.T
+            self.P -= term + term.T
+        if noise_with_stored is not None:
+            self.cross -= gain @ noise_with_stored
         return UpdateResult(True, nu, whitened, nis, threshold, whitening)
+
+    def _decorrelated(
+        self,
+        z: NDArray[np.float64],
+        h: NDArray[np.float64],
+        r: NDArray[np.float64],
+        cov_state_noise: NDArray[np.float64],
+        noise_with_stored: NDArray[np.float64],
+        covariance: NDArray[np.float64],
+    ) -> tuple[NDArray[np.float64], ...]:
+        """The equivalent measurement whose noise is independent of the state error, for a
+        federated local whose own P is not its error's covariance (module docstring):
+        G = P_u⁻¹ M, z' = z + Gᵀ x̂, H' = H + Gᵀ, R' = R − Mᵀ G, Cov(w', e) = B D − Gᵀ C."""
+        g = cholesky_solve(0.5 * (covariance + covariance.T), cov_state_noise)
+        if g is None:
+            raise ValueError("a correlated update needs a positive definite state covariance")
+        r_new = r - cov_state_noise.T @ g
+        return (
+            z + g.T @ self.x,
+            np.ascontiguousarray(h + g.T),
+            np.ascontiguousarray(0.5 * (r_new + r_new.T)),
+            noise_with_stored - g.T @ self.cross,
+        )
+
+    def store_error(
+        self,
+        columns: NDArray[np.intp],
+        h: NDArray[np.float64],
+        covariance: NDArray[np.float64] | None = None,
+    ) -> None:
+        """The stored errors ``columns`` become ``h ε`` now (an estimate stored from this
+        filter): C_c = P hᵀ, D_cc = h P hᵀ, D_c· = h C (module docstring). ``covariance``
+        (default: ``P``) is the state covariance to take them from (a federated local's at unit
+        share)."""
+        p = self.P if covariance is None else covariance
+        with_others = h @ self.cross
+        self.stored_covariance[columns, :] = with_others
+        self.stored_covariance[:, columns] = with_others.T
+        self.stored_covariance[np.ix_(columns, columns)] = h @ p @ h.T
+        self.cross[:, columns] = p @ h.T
 
     def take_in(self, column: int, jump: float, variance: float) -> None:
         """A jump along signature column E (:mod:`fusion.jumps`): x ← x + E·jump and
@@ -143,13 +265,15 @@ class KalmanFilter:
     def restart(self, index: int, value: float, variance: float) -> None:
         """Restart state ``index`` at ``value`` with ``variance``, uncorrelated with the rest:
         the state itself changed (it is not a measurement of what it had been), so nothing
-        else moves; its part of the signature columns goes with it."""
+        else moves; its rows of the signature columns and of the stored errors' cross-covariance
+        go with it."""
         self.x[index] = value
         self.P[index, :] = 0.0
         self.P[:, index] = 0.0
         self.P[index, index] = variance
         if self.signatures.shape[1]:
             self.signatures[index, :] = 0.0
+        self.cross[index, :] = 0.0
 
     def condition(self, index: int, value: float) -> None:
         """Condition on state ``index`` being exactly ``value``: an update with H = e_indexᵀ and

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 from filterpy.kalman import KalmanFilter as FilterpyKF
 
-from fusion.kalman import KalmanFilter, chi2_threshold
+from fusion.kalman import CorrelatedNoise, KalmanFilter, chi2_threshold
 
 
 def _problem(seed: int) -> tuple[np.ndarray, ...]:
@@ -109,3 +109,107 @@ def test_restart_moves_only_the_restarted_state() -> None:
     np.testing.assert_array_equal(kf.P[2], [0.0, 0.0, 1e-8])
     np.testing.assert_array_equal(kf.P[:2, :2], [[1.0, 0.5], [0.5, 2.0]])
     np.testing.assert_array_equal(kf.signatures[2], [0.0, 0.0])
+
+
+def _schmidt_reference(
+    cov: np.ndarray, n: int, h: np.ndarray, b_full: np.ndarray, r_v: np.ndarray
+) -> np.ndarray:
+    """The update of the joint covariance of (ε, e) for ``z = H x + B e + v`` when only x is
+    estimated (a Schmidt, or consider, filter): gain rows of e zero, Joseph form."""
+    h_joint = np.hstack([h, b_full])
+    s = h_joint @ cov @ h_joint.T + r_v
+    gain = np.zeros((cov.shape[0], h.shape[0]))
+    gain[:n] = (cov @ h_joint.T)[:n] @ np.linalg.inv(s)
+    i_kh = np.eye(cov.shape[0]) - gain @ h_joint
+    return i_kh @ cov @ i_kh.T + gain @ r_v @ gain.T
+
+
+def test_stored_error_update_is_the_joint_gaussian_one() -> None:
+    """Two stored errors (3 variables each) taken from the filter at different times, ordinary
+    updates in between, then updates whose noise carries one of them: P, the cross-covariances
+    C and the stored covariance D equal those of a filter over the joint state (ε, e) that
+    does not estimate e, and so do the gain's corrections of x."""
+    phi, q, h, r, p0, x0 = _problem(3)
+    n, m = x0.size, h.shape[0]
+    rng = np.random.default_rng(4)
+    kf = KalmanFilter(x0, p0, stored_errors=6)
+    joint = np.zeros((n + 6, n + 6))
+    joint[:n, :n] = p0
+    x_ref = x0.copy()
+    groups = (np.arange(3), np.arange(3, 6))
+    store_at = {3: 0, 9: 1}
+    carried_at = {14: 0, 17: 1, 20: 0}
+    for step in range(22):
+        kf.predict(phi, q)
+        phi_joint = np.eye(n + 6)
+        phi_joint[:n, :n] = phi
+        joint = phi_joint @ joint @ phi_joint.T
+        joint[:n, :n] += q
+        x_ref = phi @ x_ref
+        z = rng.standard_normal(m)
+        if step in carried_at:
+            cols = groups[carried_at[step]]
+            b = rng.standard_normal((m, 3))
+            b_full = np.zeros((m, 6))
+            b_full[:, cols] = b
+            r_total = r + b @ kf.stored_covariance[np.ix_(cols, cols)] @ b.T
+            kf.update(z, h, r_total, correlated=CorrelatedNoise(cols, b))
+            h_joint = np.hstack([h, b_full])
+            s = h_joint @ joint @ h_joint.T + r
+            x_ref = x_ref + (joint @ h_joint.T)[:n] @ np.linalg.solve(s, z - h @ x_ref)
+            joint = _schmidt_reference(joint, n, h, b_full, r)
+        else:
+            kf.update(z, h, r)
+            joint = _schmidt_reference(joint, n, h, np.zeros((m, 6)), r)
+            x_ref = x_ref + kf.P @ h.T @ np.linalg.solve(r, z - h @ x_ref)
+        if step in store_at:
+            cols = groups[store_at[step]]
+            h_store = rng.standard_normal((3, n))
+            kf.store_error(cols, h_store)
+            transform = np.eye(n + 6)
+            transform[n + cols] = 0.0
+            transform[np.ix_(n + cols, np.arange(n))] = h_store
+            joint = transform @ joint @ transform.T
+        np.testing.assert_allclose(kf.P, joint[:n, :n], rtol=1e-9, atol=1e-12)
+        np.testing.assert_allclose(kf.cross, joint[:n, n:], rtol=1e-9, atol=1e-12)
+        np.testing.assert_allclose(kf.stored_covariance, joint[n:, n:], rtol=1e-9, atol=1e-12)
+        np.testing.assert_allclose(kf.x, x_ref, rtol=1e-9, atol=1e-12)
+
+
+def test_innovations_against_a_stored_estimate_are_consistent() -> None:
+    """A random walk observed for 10 steps; its estimate at step 10 is stored and at step 20,
+    after 10 unobserved steps, the walk is measured relative to it. With the stored error's
+    correlation tracked, the NIS of that measurement averages 1 over 2000 runs and the
+    posterior variance is the spread of the errors; taking the stored error for independent
+    noise (its variance added to R) misses both, by a factor of about 3 in the NIS."""
+    runs, q, r_direct, r_relative = 2000, 0.01, 1.0, 1e-4
+    rng = np.random.default_rng(8)
+    nis: dict[bool, list[float]] = {True: [], False: []}
+    errors: dict[bool, list[float]] = {True: [], False: []}
+    variances: dict[bool, list[float]] = {True: [], False: []}
+    for _ in range(runs):
+        walk = np.cumsum(rng.normal(0.0, np.sqrt(q), 21))
+        noise = rng.normal(0.0, np.sqrt(r_direct), 11)
+        relative_noise = rng.normal(0.0, np.sqrt(r_relative))
+        for tracked in (True, False):
+            kf = KalmanFilter(np.zeros(1), np.array([[q]]), stored_errors=1)
+            for k in range(21):
+                if k:
+                    kf.predict(np.eye(1), np.array([[q]]))
+                if k <= 10:
+                    kf.update(np.array([walk[k] + noise[k]]), np.eye(1), np.array([[r_direct]]))
+                if k == 10:
+                    stored = kf.x[0]
+                    kf.store_error(np.array([0]), -np.eye(1))  # ŝ − x = −(x − x̂)
+            # z = x_20 − x_10 + v, i.e. z + ŝ = x_20 + (ŝ − x_10) + v
+            z = walk[20] - walk[10] + relative_noise + stored
+            r = r_relative + kf.stored_covariance[0, 0]
+            correlated = CorrelatedNoise(np.array([0]), np.eye(1)) if tracked else None
+            res = kf.update(np.array([z]), np.eye(1), np.array([[r]]), correlated=correlated)
+            nis[tracked].append(res.nis)
+            errors[tracked].append(walk[20] - kf.x[0])
+            variances[tracked].append(kf.P[0, 0])
+    assert 0.9 < np.mean(nis[True]) < 1.1
+    assert abs(np.var(errors[True]) / np.mean(variances[True]) - 1.0) < 0.1
+    assert np.mean(nis[False]) < 0.5
+    assert abs(np.var(errors[False]) / np.mean(variances[False]) - 1.0) > 0.1
