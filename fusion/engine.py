@@ -55,7 +55,8 @@ from fusion.strapdown import HGT, LAT, LON, NAV_SIZE, Q0, VEL, NavState, Strapdo
 
 _log = logging.getLogger(__name__)
 ProgressCallback = Callable[[float], None]
-GRID, OUTPUT = -1, -2
+GRID, OUTPUT, STORE = -1, -2, -3
+"""Event sources that are not a plugin's measurement; plugin i's store epochs are STORE − i."""
 
 
 @dataclass
@@ -147,11 +148,13 @@ def _event_schedule(
     plugin_epochs: list[NDArray[np.float64]],
     max_rates: list[float | None],
     output_times: NDArray[np.float64],
+    store_epochs: list[NDArray[np.float64]] | None = None,
 ) -> tuple[NDArray[np.float64], NDArray[np.int16], NDArray[np.int32]]:
     """Merge all event times; return times, source and index.
 
-    The source is ``GRID`` for a covariance step, ``OUTPUT`` for an output epoch, otherwise the
-    plugin's position in the list (and the index is the plugin's epoch index).
+    The source is ``GRID`` for a covariance step, ``OUTPUT`` for an output epoch, ``STORE − i``
+    for a store epoch of plugin i, otherwise the plugin's position in the list (and the index
+    is the plugin's epoch index).
     """
     n_grid = int(np.floor((t_end - t0) / step + 1e-9))
     grid = t0 + step * np.arange(1, n_grid + 1)
@@ -165,6 +168,11 @@ def _event_schedule(
         keep = np.flatnonzero((ep > t0) & (ep <= t_end) & _at_most(ep, rate))
         times.append(ep[keep])
         sources.append(np.full(keep.size, i, np.int16))
+        indices.append(keep.astype(np.int32))
+    for i, ep in enumerate(store_epochs or []):
+        keep = np.flatnonzero((ep > t0) & (ep <= t_end))
+        times.append(ep[keep])
+        sources.append(np.full(keep.size, STORE - i, np.int16))
         indices.append(keep.astype(np.int32))
     t_all = np.concatenate(times)
     order = np.argsort(t_all, kind="stable")
@@ -195,6 +203,8 @@ class Engine:
         ]
         self.gates = [b.gate_probability for b in config.plugins if b.enabled]
         self.plugin_blocks = [p.state_blocks() for p in self.plugins]
+        counts = [p.stored_errors() for p in self.plugins]
+        self.stored_error_offsets = np.concatenate([[0], np.cumsum(counts)]).astype(np.intp)
         imu = resolve_imu_noise(config.imu, meta.imu.spec)
         self.imu_noise = imu
         sigma = meta.initial.sigma
@@ -216,8 +226,9 @@ class Engine:
     def filter_bank(self) -> FilterBank:
         """The configured architecture over this engine's layout."""
         opts = self.config.filter
+        stored = int(self.stored_error_offsets[-1])
         if opts.architecture == "centralized":
-            return CentralizedFilter(self.layout)
+            return CentralizedFilter(self.layout, stored)
         enabled = [b for b in self.config.plugins if b.enabled]
         return FederatedFilter(
             self.layout,
@@ -226,6 +237,7 @@ class Engine:
             opts.federated,
             opts.jump_detection.min_updates,
             [b.instance_name for b in enabled],
+            stored,
         )
 
     def initial_state(self) -> NavState:
@@ -265,6 +277,7 @@ class Engine:
             [p.epochs() for p in self.plugins],
             [b.max_rate_hz for b in self.config.plugins if b.enabled],
             output_times,
+            [p.store_epochs() for p in self.plugins],
         )
         release_freed_memory()  # the schedule's sort temporaries
         logs = {p.name: InnovationLog() for p in self.plugins}
@@ -305,8 +318,12 @@ class Engine:
             prior = bank.smoothing_state() if smoother is not None else None
             updated = False
             is_output = False
+            stores = []
             for k in range(i, j):
                 src = int(sources[k])
+                if src <= STORE:  # after the round's feedback
+                    stores.append((STORE - src, int(indices[k])))
+                    continue
                 if src < 0:
                     is_output |= src == OUTPUT or (src == GRID and rate is None)
                     continue
@@ -316,6 +333,8 @@ class Engine:
             if bank.fusion_due(te, updated):
                 dx = bank.feedback(te)
                 sins.correct(dx[0:3], dx[3:6], dx[6:9], dx[9:12], dx[12:15])
+            for src, index in stores:
+                self._store(src, index, te, sins, bank)
             if smoother is not None and prior is not None and posterior is not None:
                 self._smoothing_step(
                     smoother, bank, te, phi, prior, posterior, dx, sins.nav if is_output else None
@@ -473,8 +492,12 @@ class Engine:
         m = plugin.measure(index, self._context(sins, layout, kf, t, shared))
         if m is None:
             return False
+        correlated = m.correlated
+        if correlated is not None:
+            offset = self.stored_error_offsets[src]
+            correlated = replace(correlated, columns=correlated.columns + offset)
         signature = jumps.innovation_signature(bank, src, m.H) if jumps is not None else None
-        res = kf.update(m.z, m.H, m.R, self.gates[src], shared)
+        res = kf.update(m.z, m.H, m.R, self.gates[src], shared, correlated)
         bank.record(src, t, res, m.suspect)
         if jumps is not None and signature is not None:
             events = [jumps.observe(t, bank, src, signature, res)]
@@ -482,6 +505,15 @@ class Engine:
             bank.faults.extend(e for e in events if e is not None)
         logs[plugin.name].append(t, res, m.suspect)
         return res.accepted
+
+    def _store(self, src: int, index: int, t: float, sins: Strapdown, bank: FilterBank) -> None:
+        """A plugin's store epoch: the filter takes on the stored error's covariances."""
+        layout, kf = bank.filter_of(src)
+        context = self._context(sins, layout, kf, t, bank.shared_covariance(src))
+        stored = self.plugins[src].store(index, context)
+        if stored is not None:
+            offset = self.stored_error_offsets[src]
+            bank.store_error(src, stored.columns + offset, stored.h)
 
     def _solution(
         self, t: NDArray[np.float64], nav: NDArray[np.float64], cov: NDArray[np.float64]

@@ -56,7 +56,14 @@ a ratio that random-walks as the updates differ — on BROAD trial 30 one local'
 
 Jump hypotheses (:mod:`fusion.jumps`): their signature columns ride along with each local's
 estimate — propagated and updated with it, fused with the same weights (E_g = P_g Σ P_i,cc⁻¹
-E_i,c), reset like it (own rows through the regression), never fed back. A jump taken in moves
+E_i,c), reset like it (own rows through the regression), never fed back. The cross-covariances
+of stored errors (:mod:`fusion.kalman`) ride along in the same way: since ε_g = P_g Σ P_i,cc⁻¹
+ε_i,c, C_g = P_g Σ P_i,cc⁻¹ C_i,c exactly. The engine stores an estimate after an instant's
+fusion and reset, from the plugin's local at unit share; every other local and the master take
+its common rows (own rows through their regression), which is exact as every member then holds
+the fused estimate (an isolated local, which does not, is given them all the same). A local
+applies a measurement whose noise carries a stored error in its decorrelated form
+(:meth:`fusion.kalman.KalmanFilter.update`), so that the fusion stays exact. A jump taken in moves
 every local at unit share; between update rounds, where every local holds the fused estimate,
 that is exactly the centralized filter's x + E Δ̂, P + E σ²_Δ Eᵀ.
 
@@ -117,10 +124,10 @@ class LocalFilter:
         """Reset the common states to the global estimate, carrying the own states along.
 
         ``x_global`` is relative to the SINS *before* feedback; afterwards the local's common
-        error estimate is zero. The signature columns follow the same regression to
-        ``e_global`` (they are not fed back).
+        error estimate is zero. The signature and cross-covariance columns follow the same
+        regression to ``e_global`` (they are not fed back).
         """
-        x, e = self.kf.x, self.kf.signatures
+        x, e = self.kf.x, self.kf.columns
         regression = self.regression() if x.size > N_COMMON else None
         if regression is not None:
             x[OWN] += regression[0] @ (x_global - x[COMMON])
@@ -128,6 +135,7 @@ class LocalFilter:
         self.kf.P = self._with_common_covariance(p_global / self.beta, regression)
         x[COMMON] = 0.0
         e[COMMON] = e_global
+        self.kf.columns = e
 
     def accommodate(self, column: int, jump: float, variance: float) -> None:
         """Take in a jump along signature column E at unit share: x ← x + E·jump and
@@ -196,10 +204,11 @@ def _fuse(
     locals_: Sequence[LocalFilter], master: KalmanFilter | None
 ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
     """Information fusion of the common states (eq. 35) in a diagonally scaled space; the
-    signature columns are fused with the same weights. Returns x_g, P_g and E_g."""
-    members = [(f.kf.x[COMMON], f.kf.signatures[COMMON], f.kf.P[COMMON, COMMON]) for f in locals_]
+    signature and cross-covariance columns are fused with the same weights. Returns x_g, P_g and
+    E_g (all columns)."""
+    members = [(f.kf.x[COMMON], f.kf.columns[COMMON], f.kf.P[COMMON, COMMON]) for f in locals_]
     if master is not None:
-        members.append((master.x, master.signatures, master.P))
+        members.append((master.x, master.columns, master.P))
     scale = np.sqrt(np.diag(members[0][2]))
     scale2 = np.outer(scale, scale)
     info = np.zeros((N_COMMON, N_COMMON))
@@ -234,6 +243,8 @@ class FederatedFilter:
         (:class:`~fusion.fault_detection.FaultMonitor`; the jump detector's ``min_updates``).
     plugin_names
         Each plugin's name, for the fault report (default: its index).
+    stored_errors
+        Number of stored-error variables every filter tracks (:mod:`fusion.kalman`).
     """
 
     def __init__(
@@ -244,6 +255,7 @@ class FederatedFilter:
         options: FederatedOptions,
         confirm_updates: int = 0,
         plugin_names: Sequence[str] | None = None,
+        stored_errors: int = 0,
     ) -> None:
         if not plugin_locals:
             raise ValueError("a federated filter needs at least one aiding plugin")
@@ -269,7 +281,7 @@ class FederatedFilter:
                     name,
                     index,
                     local_layout,
-                    KalmanFilter(np.zeros(index.size), p),
+                    KalmanFilter(np.zeros(index.size), p, stored_errors),
                     share,
                     FaultMonitor(
                         name,
@@ -281,7 +293,9 @@ class FederatedFilter:
         self._local_of_plugin = [names.index(n) for n in plugin_locals]
         self._plugin_names = list(plugin_names or map(str, range(len(plugin_locals))))
         self.master = (
-            KalmanFilter(np.zeros(N_COMMON), p0[COMMON, COMMON] / options.master_share)
+            KalmanFilter(
+                np.zeros(N_COMMON), p0[COMMON, COMMON] / options.master_share, stored_errors
+            )
             if options.master_share > 0
             else None
         )
@@ -357,6 +371,24 @@ class FederatedFilter:
             self.master.take_in(column, jump, variance / self.options.master_share)
         self._fused = None
 
+    def store_error(self, plugin: int, columns: NDArray[np.intp], h: NDArray[np.float64]) -> None:
+        """Store in the plugin's local (at unit share when it takes part in the resets); the
+        other locals and the master take its common rows (module docstring) and its covariance
+        of the stored errors (any local may later carry them)."""
+        local = self.locals[self._local_of_plugin[plugin]]
+        local.kf.store_error(columns, h, self.shared_covariance(plugin))
+        common = local.kf.cross[COMMON][:, columns]
+        for f in self.locals:
+            if f is not local:
+                f.kf.cross[COMMON, columns] = common
+                if f.kf.dim > N_COMMON:
+                    f.kf.cross[OWN, columns] = f.regression()[0] @ common
+        for kf in self._filters():
+            kf.stored_covariance = local.kf.stored_covariance.copy()
+        if self.master is not None:
+            self.master.cross[:, columns] = common
+        self._fused = None
+
     def condition(self, index: int, value: float) -> None:
         """Condition the local that holds state ``index`` (a plugin state) on its value."""
         for kf, own in self._holders(index):
@@ -423,7 +455,7 @@ class FederatedFilter:
             if self.options.mode == "fusion_reset":
                 self.master.x[:] = 0.0
                 self.master.P = p_g / self.options.master_share
-                self.master.signatures = e_g.copy()
+                self.master.columns = e_g
             else:
                 self.master.x -= x_g
         # Reset or re-referenced, the same members fuse to (0, P_g); a re-admitted local changes

@@ -6,8 +6,9 @@ followed by every plugin's states, one centralized specification). For a plugin'
 the filter that serves the plugin (its layout and :class:`~fusion.kalman.KalmanFilter`). After an
 update round it returns the correction of the 15 common states to feed back into the SINS and
 re-references its estimates to the corrected SINS (closed loop). It carries the signature
-columns of the jump hypotheses (:mod:`fusion.jumps`) through the same linear steps as its
-estimates, and takes in a jump the detector declares. The centralized filter is one
+columns of the jump hypotheses (:mod:`fusion.jumps`) and the cross-covariances of stored errors
+(:mod:`fusion.kalman`) through the same linear steps as its estimates, and takes in a jump the
+detector declares. The centralized filter is one
 Kalman filter over the whole layout; :mod:`fusion.federated` cuts local filters out of the same
 layout by index sets.
 """
@@ -60,6 +61,11 @@ class FilterBank(Protocol):
     def accommodate(self, column: int, jump: float, variance: float) -> None:
         """Take in a jump along signature column E: x ← x + E·jump, P ← P + E·variance·Eᵀ."""
 
+    def store_error(self, plugin: int, columns: NDArray[np.intp], h: NDArray[np.float64]) -> None:
+        """Plugin ``plugin`` stored an estimate whose error is ``h ε`` of its filter (``h`` over
+        that filter's layout) as stored errors ``columns``
+        (:meth:`fusion.kalman.KalmanFilter.store_error`)."""
+
     def condition(self, index: int, value: float) -> None:
         """Set state ``index`` of the full layout to ``value`` by conditioning on it (the
         correlated states follow)."""
@@ -94,9 +100,9 @@ class FilterBank(Protocol):
 class CentralizedFilter:
     """One Kalman filter over every state (the CKF baseline)."""
 
-    def __init__(self, layout: StateLayout) -> None:
+    def __init__(self, layout: StateLayout, stored_errors: int = 0) -> None:
         self.layout = layout
-        self.kf = KalmanFilter(np.zeros(layout.dim), layout.initial_covariance())
+        self.kf = KalmanFilter(np.zeros(layout.dim), layout.initial_covariance(), stored_errors)
         self.faults: list[FaultEvent] = []
         self._position = layout.slice(POSITION)
 
@@ -134,6 +140,10 @@ class CentralizedFilter:
     def accommodate(self, column: int, jump: float, variance: float) -> None:
         """x ← x + E·jump, P ← P + E·variance·Eᵀ."""
         self.kf.take_in(column, jump, variance)
+
+    def store_error(self, plugin: int, columns: NDArray[np.intp], h: NDArray[np.float64]) -> None:
+        """The one filter stores it."""
+        self.kf.store_error(columns, h)
 
     def condition(self, index: int, value: float) -> None:
         """A Kalman update on ``x[index] = value`` with a negligible R."""

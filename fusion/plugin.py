@@ -7,7 +7,12 @@ error estimate) and the plugin returns a :class:`Measurement` ``(z, H, R)`` over
 ``None`` when it has nothing to say. ``z`` is the predicted-minus-measured residual, so that
 ``z = H δx + v`` with ``δx`` the error state (estimate minus truth). A plugin owns the extra states
 its model needs (odometer scale, mounting angles, range biases) by declaring
-:class:`~fusion.error_model.StateBlock` objects, which the engine appends to the layout.
+:class:`~fusion.error_model.StateBlock` objects, which the engine appends to the layout. A plugin
+that stores the filter's estimate to measure against it later (CPOEM's optimal points) declares
+:meth:`Plugin.stored_errors` variables, stores into them at its :meth:`Plugin.store_epochs`
+(after that instant's update round and feedback) by returning a :class:`StoredEstimate`, and
+names them in a later measurement's :class:`~fusion.kalman.CorrelatedNoise`: the filter then
+accounts for the stored estimate's error being correlated with its own (:mod:`fusion.kalman`).
 
 Plugins are found through the ``fusion.plugins`` entry-point group (``name = "module:Class"``),
 so a third party adds one by packaging it, without touching the core.
@@ -30,6 +35,7 @@ from pydantic import BaseModel, ConfigDict, ValidationError
 from fusion.config import FusionConfig
 from fusion.earth import LocalFrame
 from fusion.error_model import StateBlock, StateLayout
+from fusion.kalman import CorrelatedNoise
 from fusion.recording import Recording
 from fusion.solution import Solution
 from fusion.validation import dotted, error_lines
@@ -58,16 +64,46 @@ class Measurement:
     """Names of the plugin's states that are physically back at their rest value at this epoch
     (a slip ratio while the wheel stands still): a state that had left rest through a jump is
     restarted there (:meth:`fusion.jumps.JumpDetector.rest`)."""
+    correlated: CorrelatedNoise | None = None
+    """The noise carries the errors of the plugin's stored estimates (columns numbered from 0
+    within the plugin's :meth:`Plugin.stored_errors`); ``R`` includes their covariance."""
 
     def stacked_with(self, other: Measurement) -> Measurement:
-        """This measurement and ``other`` as one (rows appended, independent noise)."""
+        """This measurement and ``other`` as one (rows appended, independent noise apart from
+        the stored errors one of them may carry)."""
         return Measurement(
             np.concatenate([self.z, other.z]),
             np.vstack([self.H, other.H]),
             scipy.linalg.block_diag(self.R, other.R),
             self.suspect or other.suspect,
             self.at_rest + tuple(n for n in other.at_rest if n not in self.at_rest),
+            _stacked_noise(self, other),
         )
+
+
+def _stacked_noise(first: Measurement, second: Measurement) -> CorrelatedNoise | None:
+    """The stored errors of two stacked measurements, of which at most one carries any (two
+    would need the covariance of their stored errors in R's off-diagonal block)."""
+    if first.correlated is not None and second.correlated is not None:
+        raise ValueError("cannot stack two measurements that both carry stored errors")
+    part = first.correlated or second.correlated
+    if part is None:
+        return None
+    mixing = np.zeros((first.z.size + second.z.size, part.columns.size))
+    rows = slice(0, first.z.size) if first.correlated is not None else slice(first.z.size, None)
+    mixing[rows] = part.mixing
+    return CorrelatedNoise(part.columns, mixing)
+
+
+@dataclass(frozen=True)
+class StoredEstimate:
+    """The plugin stores an estimate of the filter now: the error of stored-error variables
+    ``columns`` (numbered within the plugin) is ``h (δx − δx̂)``, the part of the error state
+    the filter has not estimated, ``h`` over the layout of the filter serving the plugin
+    (:meth:`fusion.kalman.KalmanFilter.store_error`)."""
+
+    columns: NDArray[np.intp]
+    h: NDArray[np.float64]
 
 
 @dataclass(frozen=True)
@@ -164,6 +200,11 @@ class Plugin(ABC):
         """Extra error states this plugin owns (default: none)."""
         return ()
 
+    def stored_errors(self) -> int:
+        """Number of stored-error variables (:class:`StoredEstimate`) this plugin uses (default:
+        none)."""
+        return 0
+
     def state_jumped(self, state: str, onset: float, before: float) -> None:
         """A jump of ``state``, one of this plugin's ``may_jump`` states, was taken in or the
         state restarted at rest (:mod:`fusion.jumps`): it held the estimate ``before`` until
@@ -179,6 +220,17 @@ class Plugin(ABC):
     @abstractmethod
     def measure(self, index: int, ctx: MeasurementContext) -> Measurement | None:
         """The measurement of epoch ``index``, or ``None``."""
+
+    def store_epochs(self) -> NDArray[np.float64]:
+        """Sorted times at which :meth:`store` is to be called (default: none)."""
+        return np.empty(0)
+
+    def store(self, index: int, ctx: MeasurementContext) -> StoredEstimate | None:
+        """Store the filter's estimate at store epoch ``index``. It is called after the update
+        round and the feedback of that instant, so ``ctx`` holds the posterior (fused, in a
+        federated filter); the plugin keeps what it needs and returns the error it stored
+        (default: nothing)."""
+        return None
 
     def standalone_solution(self) -> Solution:
         """A solution from this sensor alone, without the SINS (``filter.architecture:

@@ -5,12 +5,14 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import numpy as np
 import pytest
 import yaml
 
 from fusion.config import load_config
 from fusion.engine import Engine
-from fusion.plugin import PluginError, create_plugin, plugin_names
+from fusion.kalman import CorrelatedNoise
+from fusion.plugin import Measurement, PluginError, create_plugin, plugin_names
 
 EXAMPLES = Path(__file__).resolve().parent / "example_plugins"
 
@@ -66,3 +68,24 @@ def test_broken_third_party_plugin_is_named_and_does_not_block_others(registered
     with pytest.raises(PluginError, match=r"broken_example.*cannot be imported"):
         create_plugin("broken_example", "b", {}, rec, ("plugins", 0))
     assert create_plugin("height_fix", "h", {}, rec, ("plugins", 1)).name == "h"
+
+
+def test_stacking_keeps_the_stored_errors_of_one_measurement_on_its_rows() -> None:
+    """A measurement carrying stored errors stacked under a plain one: its B moves to its rows.
+    Two that both carry some are refused (R's off-diagonal block would need their covariance)."""
+    plain = Measurement(np.zeros(2), np.zeros((2, 4)), np.eye(2))
+    carrying = Measurement(
+        np.zeros(3),
+        np.zeros((3, 4)),
+        np.eye(3),
+        correlated=CorrelatedNoise(np.array([3, 4, 5]), -np.eye(3)),
+    )
+    stacked = plain.stacked_with(carrying)
+    assert stacked.correlated is not None
+    np.testing.assert_array_equal(stacked.correlated.columns, [3, 4, 5])
+    np.testing.assert_array_equal(
+        stacked.correlated.mixing, np.vstack([np.zeros((2, 3)), -np.eye(3)])
+    )
+    assert plain.stacked_with(plain).correlated is None
+    with pytest.raises(ValueError, match="both carry stored errors"):
+        carrying.stacked_with(carrying)
