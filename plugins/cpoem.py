@@ -33,34 +33,41 @@ Noise (eq. 8: the predicted point is never pretended exact)::
 
     R = k R_local P̂ R_localᵀ + m σ_d² a aᵀ + σ_g² I + σ_s² u_y u_yᵀ
 
-with ``P̂`` the stored point's covariance, m advances of 1σ ``advance_sigma_m``, the AFC line's
+with ``P̂`` the stored point's covariance (``k = 1``, or ``k = n`` for a point refreshed by the
+smoother, below), m advances of 1σ ``advance_sigma_m``, the AFC line's
 deviation from "previous line plus advance" (snaking, floor; ``geometry_sigma_m``) and the error
 of finding the point again by mileage, along the track ``u_y = C̃_b^n e_y`` (``along_sigma_m``).
 
-Where the points come from (seed 000 §2.2 and Fig. 4), and the one approximation
--------------------------------------------------------------------------------
+Where the points come from (seed 000 §2.2 and Fig. 4), and how their errors are treated
+-------------------------------------------------------------------------------------
 * The two face-end points are surveyed (``face.ends_enu_m``, 1σ ``survey_sigma_m``). They are
   never replaced by filter estimates: each visit predicts them from the previous visit plus the
   advance, and that chain, with its growing covariance, is what the next visit uses. Their error
   (survey, advances) is independent of the filter's: ``k = 1``.
 * Every other (*interior*) point records, at its visit in the first cycle, the filter's estimate
   there (nominal position minus the position error estimate, covariance from
-  ``ctx.covariance``); in each later cycle its measurement is applied and the filter's posterior
-  at the same instant replaces it for the next cycle (seed 000: "the positions of the current
-  cutting cycle"). The smoother (issue #6) replaces those with smoothed ones after a pass
-  (:meth:`Cpoem.refresh_points`).
+  ``ctx.covariance``); in each later cycle its measurement is applied and the filter's
+  posterior at the same instant (after the update and feedback) replaces it for the next cycle
+  (seed 000: "the positions of the current cutting cycle"). The smoother (issue #6) replaces
+  those with smoothed ones after a pass (:meth:`Cpoem.refresh_points`).
 
 An interior point's error is the filter's own error at the earlier visit: slowly varying states
-(heading, odometer scale, mounting) make it correlated from one point to the next along the
-whole face, and with the current state error. A filter that takes the n interior points of a
-pass as independent adds up n times the same error (measured on ``seed000-carrier`` with the
-MEMS grade: position RMS(err/σ) up to 3.9 along the face and vertically by cycle 4, and a worse
-SEP than with the face ends alone). The exact treatment would clone the position into the state
-at each visit (stochastic cloning, 3 states per point and engine support to reset them). The
-approximation made here is the one for fully correlated errors: the n interior points of a pass
-together carry the information of one, ``k = n`` (so Δ sets where the corrections are spread,
-not how much they weigh). Their whitened innovations are therefore below 1 by construction
-(≈ 1/√n when the stored covariance dominates).
+(heading, odometer scale, mounting) make it correlated with the current state error and from
+one point to the next along the whole face. The filter tracks that correlation exactly
+(stochastic cloning without refining the clone, :mod:`fusion.kalman`'s stored errors): each
+point owns three stored-error variables; recording it stores ``e_i = R_localᵀ (δp − δp̂)``, so the
+filter keeps ``Cov(ε, e_i)`` (propagated and updated with its estimate) and ``Cov(e_i, e_j)``;
+the measurement's noise is ``w = −R_local e_i + v`` (:class:`~fusion.kalman.CorrelatedNoise`),
+with ``k = 1``. A filter that took the stored errors for independent noise counted the same
+error once per point (measured on ``seed000-carrier`` with the MEMS grade: position RMS(err/σ)
+up to 3.9 along the face and vertically by cycle 4, and a worse SEP than with the face ends
+alone); the weighting that preceded this one, ``k = n`` (the n interior points of a pass carry
+the information of one), kept it consistent but pessimistic (whitened innovations 0.2).
+
+A point refreshed by the smoother (:meth:`Cpoem.refresh_points`) has a smoothed error whose
+correlation with the filter's is not known (the smoother would have to carry the
+cross-covariance of its smoothed states with the window's last one): until its next visit
+re-records it, it falls back to ``k = n`` and uncorrelated noise.
 
 Cycle and face-end detection (from the odometer only; ``truth.csv`` is never read)
 --------------------------------------------------------------------------------
@@ -86,9 +93,10 @@ the hysteresis):
 A point sits at along-face mileage ``iΔ`` from the starting end (interior points at least
 ``end_clearance_m`` from either end); in each pass it is visited when S first crosses it in the
 pass direction (time interpolated between odometer samples), the face ends at the pass's
-departure and arrival times. :meth:`Cpoem.epochs` returns every visit time twice: the first call
-applies the measurement, the second (same instant, after the update, before the feedback)
-records the posterior. The visits are computed from the whole odometer stream before the run;
+departure and arrival times. :meth:`Cpoem.epochs` returns every visit time (the measurement),
+:meth:`Cpoem.store_epochs` every interior point's (the record of the posterior, which the engine
+calls after that instant's update and feedback, so a federated filter stores its fused
+estimate). The visits are computed from the whole odometer stream before the run;
 the face-end visits at the pass boundaries use the hindsight of the reversal's confirmation
 (``reversal_hysteresis_m`` of travel), which an online system would apply that much later.
 :meth:`Cpoem.window_ends` gives the engine's online smoother the face ends (from the second
@@ -106,7 +114,8 @@ from pydantic import Field, model_validator
 
 from fusion.attitude import skew
 from fusion.error_model import ATTITUDE, POSITION
-from fusion.plugin import Measurement, MeasurementContext, Plugin, PluginOptions
+from fusion.kalman import CorrelatedNoise
+from fusion.plugin import Measurement, MeasurementContext, Plugin, PluginOptions, StoredEstimate
 from fusion.recording import OdometerData, Recording
 
 AT_EXTREME_M = 0.01
@@ -407,7 +416,9 @@ class Cpoem(Plugin):
         self._stored_t = np.full(n, np.nan)
         self._stored_p = np.zeros((n, 3))
         self._stored_cov = np.zeros((n, 3, 3))
+        self._tracked = np.zeros(n, dtype=bool)
         self._pass_ends = np.array([p.t_end for p in self.passes if p.complete])
+        self._interior_visits = [k for k, v in enumerate(self.visits) if not self.is_end(v.point)]
 
     def _plan_visits(
         self, t: NDArray[np.float64], mileage: NDArray[np.float64]
@@ -445,9 +456,17 @@ class Cpoem(Plugin):
         visits.sort(key=lambda v: v.t)
         return points, visits
 
+    def stored_errors(self) -> int:
+        """Three per point (the ENU error of its stored position; the face ends' stay unused)."""
+        return 3 * self.point_mileage.size
+
     def epochs(self) -> NDArray[np.float64]:
-        """Every visit time twice: measurement, then the record of the posterior."""
-        return np.repeat(np.array([v.t for v in self.visits], dtype=float), 2)
+        """Every visit time (the measurement)."""
+        return np.array([v.t for v in self.visits], dtype=float)
+
+    def store_epochs(self) -> NDArray[np.float64]:
+        """The visit time of every interior point (the record of the posterior)."""
+        return np.array([self.visits[k].t for k in self._interior_visits], dtype=float)
 
     def is_end(self, point: int) -> bool:
         """Whether ``point`` is one of the two surveyed face ends."""
@@ -455,19 +474,23 @@ class Cpoem(Plugin):
             bool(self.passes) and self.passes[0].complete and point == self.point_mileage.size - 1
         )
 
+    def store(self, index: int, ctx: MeasurementContext) -> StoredEstimate:
+        """Record the filter's posterior at an interior point's visit (:meth:`store_epochs`)."""
+        visit = self.visits[self._interior_visits[index]]
+        rot = ctx.rotation_to_local
+        pos = ctx.layout.slice(POSITION)
+        self._store(
+            visit, ctx.position_enu - rot.T @ ctx.x[pos], rot.T @ ctx.covariance[pos, pos] @ rot
+        )
+        self._tracked[visit.point] = True
+        h = np.zeros((3, ctx.layout.dim))
+        h[:, pos] = rot.T  # the stored point's error: Rᵀ (δp − δp̂), δp̂ the estimate
+        return StoredEstimate(self._columns(visit.point), h)
+
     def measure(self, index: int, ctx: MeasurementContext) -> Measurement | None:
-        """The point's predicted position (even index) or the record of the estimate (odd)."""
-        visit = self.visits[index // 2]
+        """The point's position predicted from its previous visit plus the advance."""
+        visit = self.visits[index]
         rot = ctx.rotation_to_local  # origin ENU → local ENU
-        if index % 2 == 1:
-            if not self.is_end(visit.point):
-                pos = ctx.layout.slice(POSITION)
-                self._store(
-                    visit,
-                    ctx.position_enu - rot.T @ ctx.x[pos],
-                    rot.T @ ctx.covariance[pos, pos] @ rot,
-                )
-            return None
         i = visit.point
         if np.isnan(self._stored_t[i]):
             if self.is_end(i):
@@ -479,7 +502,8 @@ class Cpoem(Plugin):
         direction, d_direction = self._advance_direction(u_x, rot)
         shift_n = advance * direction  # eq. 6 in the local level axes
         opts = self.options
-        shared_by = 1 if self.is_end(i) else self.point_mileage.size - 2  # k: the interior count
+        tracked = bool(self._tracked[i])
+        shared_by = 1 if self.is_end(i) or tracked else self.point_mileage.size - 2  # k
         chain_local = (
             shared_by * rot @ self._stored_cov[i] @ rot.T
             + count * opts.advance_sigma_m**2 * np.outer(direction, direction)
@@ -492,7 +516,13 @@ class Cpoem(Plugin):
         h[:, ctx.layout.slice(POSITION)] = np.eye(3)
         if self.is_end(i):  # the survey chain: predicted point, never the filter's estimate
             self._store(visit, self._stored_p[i] + rot.T @ shift_n, rot.T @ chain_local @ rot)
-        return Measurement(z, h, r)
+        correlated = CorrelatedNoise(self._columns(i), -rot) if tracked else None
+        return Measurement(z, h, r, correlated=correlated)
+
+    @staticmethod
+    def _columns(point: int) -> NDArray[np.intp]:
+        """The stored-error variables of a point's position."""
+        return np.arange(3 * point, 3 * point + 3, dtype=np.intp)
 
     def _advance_direction(
         self, u_x: NDArray[np.float64], rot: NDArray[np.float64]
@@ -598,5 +628,6 @@ class Cpoem(Plugin):
             self._stored_p[i] = (1 - w) * positions_enu[k - 1] + w * positions_enu[k]
             cov = (1 - w) * covariances[k - 1] + w * covariances[k]
             self._stored_cov[i] = 0.5 * (cov + cov.T)
+            self._tracked[i] = False
             replaced += 1
         return replaced

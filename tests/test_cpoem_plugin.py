@@ -10,15 +10,16 @@ import numpy as np
 import pytest
 
 from fusion.attitude import dcm_from_euler
-from fusion.config import load_config
+from fusion.config import FusionConfig, load_config, parse_config
 from fusion.engine import Engine, RunResult
 from fusion.metrics import compute_metrics, interpolate_truth
-from fusion.plugin import Measurement
+from fusion.plugin import Measurement, MeasurementContext
 from fusion.recording import (
     OdometerData,
     Recording,
     RecordingMeta,
     SupportData,
+    TruthData,
     read_recording,
 )
 from fusion.sim.simulate import simulate
@@ -93,19 +94,21 @@ def _true_position(rec: Recording, t: float) -> np.ndarray:
     return mileage * ALONG + (ADVANCE_M * ATTITUDE[:, 0] if t > PUSH_T else 0.0)
 
 
-def _walk_to(plugin: Cpoem, rec: Recording, stop: int) -> None:
-    """Call ``measure`` for the epochs before ``stop`` with the true SINS state."""
+def _true_context(plugin: Cpoem, rec: Recording, t: float) -> MeasurementContext:
     layout = layout_with(plugin.state_blocks())
-    times = plugin.epochs()
-    for k in range(stop):
-        ctx = perturbed_context(
-            layout,
-            np.zeros(layout.dim),
-            t=float(times[k]),
-            position_enu=_true_position(rec, times[k]),
-            c_b_n=ATTITUDE,
-        )
-        plugin.measure(k, ctx)
+    return perturbed_context(
+        layout, np.zeros(layout.dim), t=t, position_enu=_true_position(rec, t), c_b_n=ATTITUDE
+    )
+
+
+def _walk_to(plugin: Cpoem, rec: Recording, stop: int) -> None:
+    """Call ``measure`` for the visits before ``stop`` with the true SINS state, and ``store``
+    after it where the visit stores the posterior (as the engine does)."""
+    stores = plugin.store_epochs()
+    for k, t in enumerate(plugin.epochs()[:stop]):
+        plugin.measure(k, _true_context(plugin, rec, float(t)))
+        for index in np.flatnonzero(stores == t):
+            plugin.store(int(index), _true_context(plugin, rec, float(t)))
 
 
 def test_synthetic_face_passes_points_and_visits() -> None:
@@ -125,19 +128,19 @@ def test_synthetic_face_passes_points_and_visits() -> None:
         assert visited == [0, 1, 2, 3, 4, 5]
     crossing = next(v.t for v in plugin.visits if v.pass_number == 1 and v.point == 3)
     assert crossing == pytest.approx(2.0 + 6.0 / 0.5)
-    layout = layout_with(plugin.state_blocks())
     times = plugin.epochs()
-    assert times.size == 2 * len(plugin.visits) and np.all(np.diff(times) >= 0)
-    first_cycle = [k for k in range(times.size) if plugin.visits[k // 2].pass_number == 1]
+    assert times.size == len(plugin.visits) and np.all(np.diff(times) >= 0)
+    stores = plugin.store_epochs()  # the interior points' visits: 4 per pass
+    np.testing.assert_array_equal(stores, [v.t for v in plugin.visits if v.point not in (0, 5)])
+    assert plugin.stored_errors() == 3 * 6
+    first_cycle = [k for k in range(times.size) if plugin.visits[k].pass_number == 1]
     for k in first_cycle:
-        ctx = perturbed_context(
-            layout,
-            np.zeros(layout.dim),
-            t=float(times[k]),
-            position_enu=_true_position(rec, times[k]),
-            c_b_n=ATTITUDE,
-        )
-        assert plugin.measure(k, ctx) is None
+        assert plugin.measure(k, _true_context(plugin, rec, float(times[k]))) is None
+        for index in np.flatnonzero(stores == times[k]):
+            stored = plugin.store(int(index), _true_context(plugin, rec, float(times[k])))
+            point = plugin.visits[k].point
+            np.testing.assert_array_equal(stored.columns, [3 * point, 3 * point + 1, 3 * point + 2])
+            np.testing.assert_allclose(stored.h[:, 6:9], np.eye(3), atol=1e-5)  # δp, ENU ≈ local
     stored_t, _, _ = plugin.stored_points()
     assert not np.any(np.isnan(stored_t))
 
@@ -149,9 +152,7 @@ def test_h_matches_numerical_differentiation(direction: str, point: int) -> None
     survey, both plus the advance) and z(δx) − z(0) = H δx to first order."""
     rec = _recording()
     plugin = Cpoem("cpoem", CpoemOptions.model_validate({"advance_direction": direction}), rec)
-    index = 2 * next(
-        k for k, v in enumerate(plugin.visits) if v.pass_number == 2 and v.point == point
-    )
+    index = next(k for k, v in enumerate(plugin.visits) if v.pass_number == 2 and v.point == point)
     _walk_to(plugin, rec, index)
     layout = layout_with(plugin.state_blocks())
     t = float(plugin.epochs()[index])
@@ -190,32 +191,38 @@ def test_h_matches_numerical_differentiation(direction: str, point: int) -> None
         assert abs(m.H[0, 5]) > 0.5 * ADVANCE_M
 
 
-def test_face_end_chain_and_interior_weight() -> None:
+def test_face_end_chain_and_interior_noise() -> None:
     """A face end is predicted from the survey plus the advance and its covariance grows by the
-    advance noise; an interior point's stored covariance counts once per pass (k = n)."""
+    advance noise. An interior point's noise carries its stored error (its three stored-error
+    variables, mixed by −R_local) with its stored covariance counted once; refreshed by the
+    smoother, whose smoothed error's correlation is unknown, it counts n times (k = n) as
+    independent noise."""
     rec = _recording()
     opts = CpoemOptions()
     plugin = Cpoem("cpoem", opts, rec)
-    far_end = 2 * next(
-        k for k, v in enumerate(plugin.visits) if v.pass_number == 2 and v.point == 5
-    )
-    _walk_to(plugin, rec, far_end + 2)
+    far_end = next(k for k, v in enumerate(plugin.visits) if v.pass_number == 2 and v.point == 5)
+    _walk_to(plugin, rec, far_end + 1)
     _, p, cov = plugin.stored_points()
     np.testing.assert_allclose(p[5], 10.0 * ALONG + ADVANCE_M * ATTITUDE[:, 0], atol=1e-9)
     expected = opts.survey_sigma_m**2 + opts.advance_sigma_m**2 + opts.geometry_sigma_m**2
     assert np.trace(cov[5]) == pytest.approx(3 * expected - 2 * opts.advance_sigma_m**2)
-    interior = far_end + 2  # the next visit: point 4, stored in the first cycle
-    assert plugin.visits[interior // 2].point == 4
-    layout = layout_with(plugin.state_blocks())
+    interior = far_end + 1  # the next visit: point 4, stored in the first cycle
+    assert plugin.visits[interior].point == 4
     t = float(plugin.epochs()[interior])
-    ctx = perturbed_context(
-        layout, np.zeros(layout.dim), t=t, position_enu=_true_position(rec, t), c_b_n=ATTITUDE
-    )
-    m = plugin.measure(interior, ctx)
-    assert m is not None
+    m = plugin.measure(interior, _true_context(plugin, rec, t))
+    assert m is not None and m.correlated is not None
+    np.testing.assert_array_equal(m.correlated.columns, [12, 13, 14])
+    np.testing.assert_allclose(m.correlated.mixing, -np.eye(3), atol=1e-5)
+    others = m.R - cov[4]
+    assert np.all(np.linalg.eigvalsh(others) > 0)  # advance, geometry, along-track noise
+    assert np.trace(others) < np.trace(cov[4]) + 3 * opts.along_sigma_m**2
+    stored_t = plugin.stored_points()[0][4]
+    times = np.array([stored_t - 1.0, stored_t + 1.0])
+    assert plugin.refresh_points(times, np.stack([p[4], p[4]]), np.stack([cov[4], cov[4]])) == 1
+    refreshed = plugin.measure(interior, _true_context(plugin, rec, t))
+    assert refreshed is not None and refreshed.correlated is None
     n_interior = plugin.point_mileage.size - 2
-    stored_cov = cov[4]
-    assert np.trace(m.R) >= n_interior * np.trace(stored_cov)
+    np.testing.assert_allclose(refreshed.R - m.R, (n_interior - 1) * cov[4], atol=1e-15)
 
 
 def test_refresh_points_replaces_interior_points_of_the_pass() -> None:
@@ -302,14 +309,43 @@ class CarrierRun:
     sep_cpoem: np.ndarray  # (4,) configs/sins_od_cpoem.yaml
     squared_normalized: np.ndarray  # (N, 3) (err/σ)² of the CPOEM run
     nis_dof: tuple[float, int]  # Σ NIS and Σ m of all CPOEM updates
+    matched_squared_normalized: np.ndarray  # the same with the noise the simulator used
+    matched_nis_dof: tuple[float, int]
     agreement: float  # detected cycle label = truth cycle, fraction of truth samples
     boundary_error_s: float  # largest |detected − true| pass boundary
     passes: int
 
 
-def _fuse(rec: Recording, config: str) -> tuple[Engine, RunResult]:
-    engine = Engine(load_config(CONFIGS / config), rec)
+def _fuse(rec: Recording, config: str | FusionConfig) -> tuple[Engine, RunResult]:
+    engine = Engine(
+        config if isinstance(config, FusionConfig) else load_config(CONFIGS / config), rec
+    )
     return engine, engine.run()
+
+
+def _matched_config() -> FusionConfig:
+    """configs/sins_od_cpoem.yaml with the noise the simulated SHORT_MEMS carrier has: its IMU
+    grade's biases are constant (no in-run instability), the odometer's speed noise is the
+    scenario's 3 mm/s, and the body's lateral and vertical velocity (the carrier's vibration
+    once the mounting is estimated) is 2.5–4.4 mm/s RMS in truth.csv (seeds 0 and 5), taken as
+    4 mm/s. The shipped values are those of a real face: pessimistic here."""
+    data = load_config(CONFIGS / "sins_od_cpoem.yaml").model_dump()
+    data["imu"].update(gyro_bias_instability_deg_h=0.0, accel_bias_instability_mg=0.0)
+    data["plugins"][0].update(
+        sigma_speed_mps=0.003, sigma_lateral_mps=0.004, sigma_vertical_mps=0.004
+    )
+    return parse_config(data)
+
+
+def _squared_normalized(result: RunResult, truth: TruthData) -> np.ndarray:
+    inside, position, *_ = interpolate_truth(truth, result.solution.t)
+    err = result.solution.position[inside] - position
+    return (err / result.solution.sigma_position[inside]) ** 2
+
+
+def _nis_dof(result: RunResult) -> tuple[float, int]:
+    log = result.innovations["cpoem"]
+    return float(log.nis.sum()), int(log.dof.sum())
 
 
 def _carrier_run(rec: Recording) -> CarrierRun:
@@ -317,10 +353,9 @@ def _carrier_run(rec: Recording) -> CarrierRun:
     truth = rec.truth
     _, base = _fuse(rec, "sins_od_ckf.yaml")
     engine, fused = _fuse(rec, "sins_od_cpoem.yaml")
+    _, matched = _fuse(rec, _matched_config())
     plugin = engine.plugins[1]
     assert isinstance(plugin, Cpoem)
-    inside, position, *_ = interpolate_truth(truth, fused.solution.t)
-    err = fused.solution.position[inside] - position
     label = np.zeros(truth.t.size, dtype=int)
     for p in plugin.passes:
         label[(truth.t >= p.t_start) & (truth.t <= p.t_end)] = p.number
@@ -337,12 +372,13 @@ def _carrier_run(rec: Recording) -> CarrierRun:
         per_cycle = compute_metrics(result.solution, truth)["sep_per_cycle"]
         return np.array([per_cycle[c] for c in (1, 2, 3, 4)], dtype=float)
 
-    log = fused.innovations["cpoem"]
     return CarrierRun(
         sep_baseline=sep(base),
         sep_cpoem=sep(fused),
-        squared_normalized=(err / fused.solution.sigma_position[inside]) ** 2,
-        nis_dof=(float(log.nis.sum()), int(log.dof.sum())),
+        squared_normalized=_squared_normalized(fused, truth),
+        nis_dof=_nis_dof(fused),
+        matched_squared_normalized=_squared_normalized(matched, truth),
+        matched_nis_dof=_nis_dof(matched),
         agreement=float(np.mean(label == truth.cycle)),
         boundary_error_s=boundary,
         passes=len(plugin.passes),
@@ -401,18 +437,22 @@ def test_cpoem_reduces_cycle_2_to_4_error(
 
 @pytest.mark.slow
 def test_consistency_over_20_seeds(mems_runs: list[CarrierRun]) -> None:
-    """Position RMS(err/σ) < 1.5 per axis over 20 seeds; the CPOEM innovations are never
-    optimistic (whitened RMS ≤ 1.3). They are pessimistic: RMS 0.21 (2026-11-26), below the
-    issue's 0.7, by construction (plugins/cpoem.py): an interior point's error is the filter's
-    own error at the earlier visit, correlated along the face and with the current error, so
-    the n interior points of a pass are weighted as one (R × n), which puts their whitened
-    innovations near 1/√n. The exact treatment, each stored point cloned into the state with
-    its cross-covariance (stochastic cloning), is not done."""
-    squared = np.concatenate([r.squared_normalized for r in mems_runs])
-    assert np.all(np.sqrt(squared.mean(axis=0)) < 1.5)
-    nis, dof = np.sum([r.nis_dof for r in mems_runs], axis=0)
-    print(
-        f"CPOEM whitened RMS {np.sqrt(nis / dof):.3f}, position RMS(err/σ)",
-        np.round(np.sqrt(squared.mean(axis=0)), 3),
-    )
-    assert np.sqrt(nis / dof) <= 1.3  # RMS of the whitened components (‖w‖² = NIS)
+    """With the noise the simulator used (:func:`_matched_config`): the CPOEM innovations'
+    whitened RMS in [0.7, 1.3] pooled over 20 seeds and position RMS(err/σ) < 1.5 per axis. The
+    stored points' errors are correlated with the filter's (plugins/cpoem.py); taken as
+    independent noise, R × n (the weighting before the cross-covariances were tracked) gave a
+    whitened RMS of 0.20. With the shipped configuration, pessimistic on this simulator, the
+    position must still be within 1.5σ and the innovations not optimistic (whitened ≤ 1.3)."""
+    for squared_key, nis_key in (
+        ("matched_squared_normalized", "matched_nis_dof"),
+        ("squared_normalized", "nis_dof"),
+    ):
+        squared = np.concatenate([getattr(r, squared_key) for r in mems_runs])
+        ratio = np.sqrt(squared.mean(axis=0))
+        nis, dof = np.sum([getattr(r, nis_key) for r in mems_runs], axis=0)
+        whitened = np.sqrt(nis / dof)  # RMS of the whitened components (‖w‖² = NIS)
+        print(f"{squared_key}: CPOEM whitened RMS {whitened:.3f}, position RMS(err/σ)", ratio)
+        assert np.all(ratio < 1.5)
+        assert whitened <= 1.3
+        if squared_key == "matched_squared_normalized":
+            assert whitened >= 0.7
