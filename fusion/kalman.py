@@ -178,18 +178,12 @@ class KalmanFilter:
         z = np.atleast_1d(np.asarray(z, dtype=float))
         h = np.ascontiguousarray(np.atleast_2d(h), dtype=float)
         r = np.ascontiguousarray(np.atleast_2d(r), dtype=float)
-        r_innovation, cov_state_noise, noise_with_stored = r, None, None
+        cov_state_noise = noise_with_stored = None
+        r_innovation = r
         if correlated is not None:
-            cov_state_noise = self.cross[:, correlated.columns] @ correlated.mixing.T  # M
-            noise_with_stored = correlated.mixing @ self.stored_covariance[correlated.columns]
-            if statistic_covariance is not None:
-                z, h, r, noise_with_stored = self._decorrelated(
-                    z, h, r, cov_state_noise, noise_with_stored, statistic_covariance
-                )
-                r_innovation, cov_state_noise = r, None
-            else:
-                hm = h @ cov_state_noise
-                r_innovation = r + hm + hm.T
+            z, h, r, r_innovation, cov_state_noise, noise_with_stored = self._correlated_terms(
+                z, h, r, correlated, statistic_covariance
+            )
         nu, chol, ph_t = _innovation(self.x, self.P, z, h, r_innovation)
         whitening = chol
         if statistic_covariance is not None:
@@ -214,6 +208,33 @@ class KalmanFilter:
         if noise_with_stored is not None:
             self.cross -= gain @ noise_with_stored
         return UpdateResult(True, nu, whitened, nis, threshold, whitening)
+
+    def _correlated_terms(
+        self,
+        z: NDArray[np.float64],
+        h: NDArray[np.float64],
+        r: NDArray[np.float64],
+        correlated: CorrelatedNoise,
+        statistic_covariance: NDArray[np.float64] | None,
+    ) -> tuple[
+        NDArray[np.float64],
+        NDArray[np.float64],
+        NDArray[np.float64],
+        NDArray[np.float64],
+        NDArray[np.float64] | None,
+        NDArray[np.float64],
+    ]:
+        """z, H, R, the R that enters S, M = Cov(ε, w) (None when decorrelated) and
+        Cov(w, e) for a noise carrying stored errors (module docstring)."""
+        cov_state_noise = self.cross[:, correlated.columns] @ correlated.mixing.T
+        noise_with_stored = correlated.mixing @ self.stored_covariance[correlated.columns]
+        if statistic_covariance is not None:  # a federated local
+            z, h, r, noise_with_stored = self._decorrelated(
+                z, h, r, cov_state_noise, noise_with_stored, statistic_covariance
+            )
+            return z, h, r, r, None, noise_with_stored
+        hm = h @ cov_state_noise
+        return z, h, r, r + hm + hm.T, cov_state_noise, noise_with_stored
 
     def _decorrelated(
         self,
