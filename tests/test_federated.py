@@ -18,8 +18,9 @@ from fusion.engine import Engine
 from fusion.error_model import ImuNoise, StateBlock, StateLayout, common_blocks
 from fusion.fault_detection import ISOLATE, READMIT, FaultMonitor
 from fusion.federated import FederatedFilter
-from fusion.filter_bank import CentralizedFilter
+from fusion.filter_bank import CentralizedFilter, FilterBank
 from fusion.kalman import CorrelatedNoise
+from fusion.plugin import MeasurementContext, StoredEstimate
 from fusion.recording import read_recording
 from fusion.sim.simulate import simulate
 
@@ -213,16 +214,17 @@ def test_stored_errors_match_the_centralized_filter(master_share: float) -> None
             np.testing.assert_allclose(f.kf.cross, c_ckf[f.index], rtol=1e-7, atol=1e-12)
 
 
-def test_single_local_equals_centralized_end_to_end(tmp_path: Path) -> None:
+@pytest.fixture(scope="module")
+def carrier_two_cycles(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    out = tmp_path_factory.mktemp("carrier") / "rec"
+    simulate("seed000-carrier", out, seed=3, overrides=["face.cycles=2", "imu.grade=seed002-mems"])
+    return out
+
+
+def test_single_local_equals_centralized_end_to_end(carrier_two_cycles: Path) -> None:
     """One local holding every plugin, β = 1: the federated engine run is the CKF run, CPOEM's
     stored errors (cycle 2 measures against cycle 1) included."""
-    simulate(
-        "seed000-carrier",
-        tmp_path / "rec",
-        seed=3,
-        overrides=["face.cycles=2", "imu.grade=seed002-mems"],
-    )
-    rec = read_recording(tmp_path / "rec")
+    rec = read_recording(carrier_two_cycles)
     config = load_config(CONFIGS / "sins_od_cpoem.yaml")
     data = config.model_dump()
     data["filter"]["architecture"] = "federated"
@@ -236,6 +238,41 @@ def test_single_local_equals_centralized_end_to_end(tmp_path: Path) -> None:
     np.testing.assert_allclose(fed.final_state, ckf.final_state, atol=1e-12)
     scale = np.abs(ckf.final_covariance).max()
     np.testing.assert_allclose(fed.final_covariance, ckf.final_covariance, atol=1e-11 * scale)
+
+
+def test_stores_come_after_the_fusion(carrier_two_cycles: Path) -> None:
+    """The engine calls a plugin's store after the instant's update round and feedback: in the
+    federated filter (odometer and CPOEM in two locals) the serving local then holds the fused
+    estimate, zero in the common states, and every other local carries the same cross rows."""
+    data = load_config(CONFIGS / "sins_od_cpoem.yaml").model_dump()
+    data["filter"]["architecture"] = "federated"
+    engine = Engine(parse_config(data), read_recording(carrier_two_cycles))
+    plugin = engine.plugins[1]
+    store = plugin.store
+    calls: list[np.ndarray] = []
+
+    def checked(index: int, ctx: MeasurementContext) -> StoredEstimate | None:
+        calls.append(ctx.x[:15].copy())
+        return store(index, ctx)
+
+    plugin.store = checked  # type: ignore[method-assign]
+    stored = engine.filter_bank
+    banks: list[FederatedFilter] = []
+
+    def keep_bank() -> FilterBank:
+        bank = stored()
+        assert isinstance(bank, FederatedFilter)
+        banks.append(bank)
+        return bank
+
+    engine.filter_bank = keep_bank  # type: ignore[method-assign]
+    engine.run()
+    assert len(calls) == plugin.store_epochs().size > 30
+    np.testing.assert_array_equal(np.array(calls), 0.0)
+    odometer_local, cpoem_local = banks[0].locals
+    np.testing.assert_allclose(
+        odometer_local.kf.cross[:15], cpoem_local.kf.cross[:15], rtol=1e-6, atol=1e-12
+    )
 
 
 def test_five_source_partition_tracks_the_centralized_filter(tmp_path: Path) -> None:
