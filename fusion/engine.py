@@ -164,15 +164,14 @@ def _event_schedule(
     # Compact integer types: an 8-hour shift with UWB ranges has about 4 million events.
     sources = [np.full(grid.size, GRID, np.int16), np.full(output_times.size, OUTPUT, np.int16)]
     indices = [np.full(grid.size, -1, np.int32), np.full(output_times.size, -1, np.int32)]
-    for i, (ep, rate) in enumerate(zip(plugin_epochs, max_rates, strict=True)):
+    streams = [
+        (ep, i, rate) for i, (ep, rate) in enumerate(zip(plugin_epochs, max_rates, strict=True))
+    ]
+    streams += [(ep, STORE - i, None) for i, ep in enumerate(store_epochs or [])]
+    for ep, source, rate in streams:
         keep = np.flatnonzero((ep > t0) & (ep <= t_end) & _at_most(ep, rate))
         times.append(ep[keep])
-        sources.append(np.full(keep.size, i, np.int16))
-        indices.append(keep.astype(np.int32))
-    for i, ep in enumerate(store_epochs or []):
-        keep = np.flatnonzero((ep > t0) & (ep <= t_end))
-        times.append(ep[keep])
-        sources.append(np.full(keep.size, STORE - i, np.int16))
+        sources.append(np.full(keep.size, source, np.int16))
         indices.append(keep.astype(np.int32))
     t_all = np.concatenate(times)
     order = np.argsort(t_all, kind="stable")

@@ -135,7 +135,6 @@ class LocalFilter:
         self.kf.P = self._with_common_covariance(p_global / self.beta, regression)
         x[COMMON] = 0.0
         e[COMMON] = e_global
-        self.kf.columns = e
 
     def accommodate(self, column: int, jump: float, variance: float) -> None:
         """Take in a jump along signature column E at unit share: x ← x + E·jump and
@@ -455,7 +454,7 @@ class FederatedFilter:
             if self.options.mode == "fusion_reset":
                 self.master.x[:] = 0.0
                 self.master.P = p_g / self.options.master_share
-                self.master.columns = e_g
+                self.master.columns = e_g.copy()
             else:
                 self.master.x -= x_g
         # Reset or re-referenced, the same members fuse to (0, P_g); a re-admitted local changes

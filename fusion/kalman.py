@@ -127,8 +127,9 @@ class KalmanFilter:
     ) -> None:
         self.x = np.array(x, dtype=float)
         self.P = np.array(p, dtype=float)
-        self.signatures = np.zeros((self.dim, 0))
-        self.cross = np.zeros((self.dim, stored_errors))
+        # One store for every column that follows the estimate's linear dynamics: the stored
+        # errors' cross-covariances (fixed count), then the jump signatures (added and dropped).
+        self.columns = np.zeros((self.dim, stored_errors))
         self.stored_covariance = np.zeros((stored_errors, stored_errors))
         self._identity = np.eye(self.dim)
 
@@ -138,23 +139,29 @@ class KalmanFilter:
         return int(self.x.shape[0])
 
     @property
-    def columns(self) -> NDArray[np.float64]:
-        """Every column that follows the estimate's linear dynamics: the signatures, then the
-        stored errors' cross-covariances (a copy; assigning splits it back)."""
-        return np.hstack([self.signatures, self.cross])
+    def cross(self) -> NDArray[np.float64]:
+        """C = Cov(ε, e), n × m (a view of :attr:`columns`)."""
+        return self.columns[:, : self.stored_covariance.shape[0]]
 
-    @columns.setter
-    def columns(self, value: NDArray[np.float64]) -> None:
-        k = self.signatures.shape[1]
-        self.signatures, self.cross = value[:, :k].copy(), value[:, k:].copy()
+    @cross.setter
+    def cross(self, value: NDArray[np.float64]) -> None:
+        self.columns[:, : self.stored_covariance.shape[0]] = value
+
+    @property
+    def signatures(self) -> NDArray[np.float64]:
+        """The jump signature columns, n × c (a view of :attr:`columns`; assigning replaces
+        them, as the jump detector adds and drops hypotheses)."""
+        return self.columns[:, self.stored_covariance.shape[0] :]
+
+    @signatures.setter
+    def signatures(self, value: NDArray[np.float64]) -> None:
+        self.columns = np.hstack([self.cross, value])
 
     def predict(self, phi: NDArray[np.float64], qd: NDArray[np.float64]) -> None:
         """Time update with transition ``phi`` and discrete process noise ``qd``."""
         self.x = phi @ self.x
-        if self.signatures.shape[1]:
-            self.signatures = phi @ self.signatures
-        if self.cross.shape[1]:
-            self.cross = phi @ self.cross
+        if self.columns.shape[1]:
+            self.columns = phi @ self.columns
         p = phi @ self.P @ phi.T + qd
         self.P = 0.5 * (p + p.T)
 
@@ -198,10 +205,8 @@ class KalmanFilter:
         if cov_state_noise is not None:
             ph_t = ph_t + cov_state_noise
         self.x, self.P, gain = _joseph(self.x, self.P, nu, chol, ph_t, h, r, self._identity)
-        if self.signatures.shape[1]:
-            self.signatures = self.signatures - gain @ (h @ self.signatures)
-        if self.cross.shape[1]:
-            self.cross = self.cross - gain @ (h @ self.cross)
+        if self.columns.shape[1]:
+            self.columns = self.columns - gain @ (h @ self.columns)
         if cov_state_noise is not None:
             term = (self._identity - gain @ h) @ cov_state_noise @ gain.T
             self.P -= term + term.T
@@ -292,9 +297,7 @@ class KalmanFilter:
         self.P[index, :] = 0.0
         self.P[:, index] = 0.0
         self.P[index, index] = variance
-        if self.signatures.shape[1]:
-            self.signatures[index, :] = 0.0
-        self.cross[index, :] = 0.0
+        self.columns[index, :] = 0.0
 
     def condition(self, index: int, value: float) -> None:
         """Condition on state ``index`` being exactly ``value``: an update with H = e_indexᵀ and
