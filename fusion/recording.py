@@ -21,16 +21,19 @@ every present CSV file (``uwb`` with a non-empty ``uwb.anchors`` when ``uwb.csv`
 CSV files: ``imu.csv`` present; never both ``x.csv`` and ``x.csv.gz``; a header line whose first
 columns are exactly the required ones in order (extra columns after them are ignored); no
 empty line, missing field, empty cell, non-numeric cell, NaN or infinity; time strictly
-increasing; ``imu.csv`` with at least two samples; the sample rate ``rate_hz`` of ``imu``,
-``odometer``, ``magnetometer`` and ``uwb`` within 10 % of ``1 / median(sample interval)``; no gap
+increasing (``uwb.csv``: per anchor); ``imu.csv`` with at least two samples; the sample rate
+``rate_hz`` of ``imu``, ``odometer`` and ``magnetometer`` within 10 % of
+``1 / median(sample interval)``; no gap
 in ``imu.csv`` longer than 5 median sample intervals (unless bridged explicitly with
 ``bridge_imu_gaps=True``); physically possible values: ``|w| <= 50 rad/s`` and
 ``|f| <= 200 m/s²`` per component, ``range >= 0``, position sigmas ``> 0``; ``anchor`` a key of
 ``uwb.anchors``; truth ``cycle`` a non-negative integer.
 
-For ``uwb.csv`` the rate is checked *per anchor*: ``uwb.rate_hz`` is the rate at which the tag
-ranges to each anchor, compared with the median interval between consecutive ranges to the same
-anchor (anchors with fewer than two ranges are not checked).
+``uwb.rate_hz`` is the ranging system's nominal rate of ranges, all anchors together, and is not
+compared with the file: which anchors answer depends on where the tag is (a system that polls
+the anchors in range in turn shares its rate among them), and the ranges of one round may share
+a time stamp. ``uwb.csv``'s times must increase per anchor; the reader returns its rows in time
+order (stable, so rows sharing a time stamp keep their file order).
 
 Every rule reports at most :data:`MAX_REPORTS_PER_RULE` occurrences per file, followed by one
 problem saying how many more lines break it.  Line numbers are 1-based file lines: the header is
@@ -151,7 +154,7 @@ _SECTION_OF: dict[str, str | None] = {
     "truth": None,
 }
 # Streams whose meta section carries a rate_hz that is checked against the data.
-_RATE_CHECKED = ("imu", "odometer", "magnetometer", "uwb")
+_RATE_CHECKED = ("imu", "odometer", "magnetometer")
 
 FloatArray = npt.NDArray[np.float64]
 IntArray = npt.NDArray[np.int64]
@@ -358,8 +361,9 @@ class MagnetometerMeta(_Section):
 class UwbMeta(_Section):
     """``uwb`` section.
 
-    ``rate_hz`` is the ranging rate *per anchor*; ``anchors`` maps each anchor id (the values
-    of the ``anchor`` column of ``uwb.csv``) to its ENU position in metres.
+    ``rate_hz`` is the nominal number of ranges per second, all anchors together (not compared
+    with the file); ``anchors`` maps each anchor id (the values of the ``anchor`` column of
+    ``uwb.csv``) to its ENU position in metres.
     """
 
     rate_hz: PositiveReal
@@ -503,7 +507,8 @@ class UwbData:
     Attributes
     ----------
     t : ndarray, shape (N,)
-        Time (s), strictly increasing.
+        Time (s), non-decreasing (strictly increasing per anchor: the ranges of one round may
+        share a time stamp).
     anchor_index : ndarray of int64, shape (N,)
         Index into ``anchor_ids`` of the anchor ranged to.
     range : ndarray, shape (N,)
@@ -1094,19 +1099,32 @@ def _num(x: Any) -> str:
     return repr(float(x))
 
 
-def _check_time(t: FloatArray, lines: IntArray, rep: _Reporter) -> None:
+def _check_time(
+    t: FloatArray, lines: IntArray, rep: _Reporter, keys: npt.NDArray[Any] | None = None
+) -> None:
+    """Time strictly increasing down the file, or per key (``uwb.csv``: per anchor, since the
+    ranges of one round may share a time stamp)."""
     if t.size < 2:
         return
-    bad = np.flatnonzero(np.diff(t) <= 0)
+    if keys is None:
+        rows = np.arange(t.size)
+        what = ""
+    else:
+        rows = np.lexsort((lines, keys))  # each key's rows in file order, keys one after another
+        what = " per anchor"
+    earlier, later = rows[:-1], rows[1:]
+    same_key = np.ones(earlier.size, dtype=bool) if keys is None else keys[earlier] == keys[later]
+    bad = np.flatnonzero(same_key & (t[later] <= t[earlier]))
+    bad = bad[np.argsort(lines[later[bad]], kind="stable")]
     rep.add_many(
         "time",
         bad.size,
         lambda i: (
-            f"line {lines[bad[i] + 1]}",
-            f"time must be strictly increasing (t={_num(t[bad[i] + 1])} after "
-            f"t={_num(t[bad[i]])} on line {lines[bad[i]]})",
+            f"line {lines[later[bad[i]]]}",
+            f"time must be strictly increasing{what} (t={_num(t[later[bad[i]]])} after "
+            f"t={_num(t[earlier[bad[i]]])} on line {lines[earlier[bad[i]]]})",
         ),
-        "time not strictly increasing",
+        f"time not strictly increasing{what}",
     )
 
 
@@ -1175,7 +1193,7 @@ def _check_cycle(cycle: FloatArray, lines: IntArray, rep: _Reporter) -> None:
 
 
 def _rate_problem(
-    section: str, rate: float, median: float, label: str, lines: dict[_Path, int], suffix: str = ""
+    section: str, rate: float, median: float, label: str, lines: dict[_Path, int]
 ) -> Problem | None:
     measured = 1.0 / median
     if abs(measured - rate) <= RATE_TOLERANCE * rate:
@@ -1186,7 +1204,7 @@ def _rate_problem(
         "meta.yaml",
         where,
         f"rate_hz = {rate:g} Hz disagrees by more than {RATE_TOLERANCE:.0%} with {label}"
-        f"{suffix}, whose median sample interval is {median:.6g} s ({measured:.6g} Hz)",
+        f", whose median sample interval is {median:.6g} s ({measured:.6g} Hz)",
     )
 
 
@@ -1292,7 +1310,7 @@ def _inspect(path: str | Path, *, bridge_imu_gaps: bool) -> tuple[Recording | No
             _check_table(stem, table, rep, anchor_ids)
             rate = rate_of(stem) if stem in _RATE_CHECKED else None
             if rate is not None:
-                problems.extend(_check_rate(stem, file.name, table, rate, anchor_ids, key_lines))
+                problems.extend(_check_rate(stem, file.name, table, rate, key_lines))
             if stem == "imu":
                 gaps = _check_imu_gaps(table, rep, report=not bridge_imu_gaps)
             tables[stem] = table
@@ -1313,29 +1331,12 @@ def _inspect(path: str | Path, *, bridge_imu_gaps: bool) -> tuple[Recording | No
 
 
 def _check_rate(
-    stem: str,
-    label: str,
-    table: _Table,
-    rate: float,
-    anchor_ids: list[str] | None,
-    key_lines: dict[_Path, int],
+    stem: str, label: str, table: _Table, rate: float, key_lines: dict[_Path, int]
 ) -> list[Problem]:
-    """Compare ``rate_hz`` with the median sample interval (per anchor for uwb)."""
-    t = table.values[:, 0]
-    found: list[Problem | None] = []
-    if stem != "uwb":
-        median = _median_interval(t)
-        if median is not None:
-            found.append(_rate_problem(stem, rate, median, label, key_lines))
-    elif anchor_ids and table.text is not None:
-        ids = np.asarray(table.text)
-        for anchor in anchor_ids:
-            median = _median_interval(t[ids == anchor])
-            if median is not None:
-                found.append(
-                    _rate_problem("uwb", rate, median, label, key_lines, f" for anchor {anchor}")
-                )
-    return [p for p in found if p is not None]
+    """Compare ``rate_hz`` with the median sample interval."""
+    median = _median_interval(table.values[:, 0])
+    found = _rate_problem(stem, rate, median, label, key_lines) if median is not None else None
+    return [found] if found is not None else []
 
 
 def _check_imu_gaps(table: _Table, rep: _Reporter, *, report: bool) -> list[tuple[float, float]]:
@@ -1363,7 +1364,7 @@ def _check_imu_gaps(table: _Table, rep: _Reporter, *, report: bool) -> list[tupl
 def _check_table(stem: str, table: _Table, rep: _Reporter, anchor_ids: list[str] | None) -> None:
     v, lines = table.values, table.lines
     columns = STREAM_COLUMNS[stem]
-    _check_time(v[:, 0], lines, rep)
+    _check_time(v[:, 0], lines, rep, np.asarray(table.text) if stem == "uwb" else None)
     if stem == "imu":
         _check_limit(v[:, 1:4], lines, columns[1:4], MAX_ANGULAR_RATE_RADPS, "rad/s", "gyro", rep)
         _check_limit(
@@ -1415,7 +1416,10 @@ def _build(
         uniq, inverse = np.unique(ids, return_inverse=True)
         index = np.array([lookup[str(u)] for u in uniq], dtype=np.int64)[inverse.reshape(-1)]
         v = uwb_table.values
-        uwb = UwbData(t=v[:, 0], anchor_index=index, range=v[:, 2], anchor_ids=anchor_ids)
+        order = np.argsort(v[:, 0], kind="stable")  # time order; a round's shared stamps stay
+        uwb = UwbData(
+            t=v[order, 0], anchor_index=index[order], range=v[order, 2], anchor_ids=anchor_ids
+        )
     return Recording(
         path=root,
         meta=meta,
@@ -1608,7 +1612,8 @@ def _writer_problems(
         for col, kind, name in zip(cols, kinds, names, strict=True):
             if kind == "f":
                 _report_nonfinite(rep, lines, np.flatnonzero(~np.isfinite(col)), name)
-        _check_time(np.asarray(cols[0], dtype=np.float64), lines, rep)
+        keys = np.asarray(cols[1]) if stem == "uwb" else None
+        _check_time(np.asarray(cols[0], dtype=np.float64), lines, rep, keys)
         if stem == "truth":
             _check_cycle(np.asarray(cols[-1], dtype=np.float64), lines, rep)
         if stem == "imu" and len(cols[0]) < 2:

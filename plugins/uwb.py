@@ -62,7 +62,7 @@ Tightly coupled ranges (:class:`UwbRanges`)
     (the posterior residual and the posterior variance of ``H x`` of the scalar Kalman update
     with this R) is iterated three times and the resulting R is the one returned. The prior
     ``β₀/α₀ = sigma_range_m²`` weighs as much as one window of ranges (``α₀ = ½ n`` with
-    ``n = uwb.rate_hz · τ``, the steady-state weight). VB is used rather than a sliding-window
+    ``n = τ · uwb.rate_hz / anchors``, the steady-state weight of one anchor's ranges). VB is used rather than a sliding-window
     innovation estimate because it needs no stored window, its weight decays smoothly with
     time (dropouts and rate changes are handled by Δt), and it stays positive by construction
     (a window estimate ``mean(ν²) − H P Hᵀ`` can go negative). An adaptive R cannot tell a
@@ -209,8 +209,9 @@ class UwbRanges(Plugin):
         self.bias_block = f"{name}.range_bias"
         n = len(self.data.anchor_ids)
         self.adaptive = options.adaptive_noise == "variational_bayes"
-        # Inverse-gamma statistics per anchor; the prior weighs one window of ranges.
-        self._alpha0 = 0.5 * max(meta.rate_hz * options.adaptive_window_s, 1.0)
+        # Inverse-gamma statistics per anchor; the prior weighs one window of the anchor's
+        # ranges (uwb.rate_hz is the nominal rate of all anchors together).
+        self._alpha0 = 0.5 * max(meta.rate_hz / n * options.adaptive_window_s, 1.0)
         self.alpha = np.full(n, self._alpha0)
         self._beta0 = self._alpha0 * options.sigma_range_m**2
         self.beta = np.full(n, self._beta0)
