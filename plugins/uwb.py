@@ -61,17 +61,17 @@ Tightly coupled ranges (:class:`UwbRanges`)
 
     (the posterior residual and the posterior variance of ``H x`` of the scalar Kalman update
     with this R) is iterated three times and the resulting R is the one returned. The prior
-    ``β₀/α₀ = sigma_range_m²`` weighs as much as one window of ranges (``α₀ = ½ n`` with
-    ``n = τ · uwb.rate_hz / anchors``, the steady-state weight of one anchor's ranges). VB is used rather than a sliding-window
-    innovation estimate because it needs no stored window, its weight decays smoothly with
-    time (dropouts and rate changes are handled by Δt), and it stays positive by construction
-    (a window estimate ``mean(ν²) − H P Hᵀ`` can go negative). An adaptive R cannot tell a
-    larger noise from an NLOS bias, so an innovation whose NIS under the prior ``R = β⁻/α⁻``
-    exceeds the χ² quantile ``adaptive_screen_probability`` does not teach R (it is returned
-    with the prior R, for the engine's gate to reject); set it equal to the block's
-    ``gate_probability`` so that the plugin learns exactly from the ranges the engine accepts.
-    The plugin keeps these statistics between calls, so one instance serves one filter run
-    with its epochs in time order.
+    ``β₀/α₀ = sigma_range_m²`` weighs as much as one window of ranges (``α₀ = ½ n`` with ``n = τ
+    · uwb.rate_hz / anchors``, the steady-state weight of one anchor's ranges). VB is used
+    rather than a sliding-window innovation estimate because it needs no stored window, its
+    weight decays smoothly with time (dropouts and rate changes are handled by Δt), and it stays
+    positive by construction (a window estimate ``mean(ν²) − H P Hᵀ`` can go negative). An
+    adaptive R cannot tell a larger noise from an NLOS bias, so an innovation whose NIS under
+    the prior ``R = β⁻/α⁻`` exceeds the χ² quantile ``adaptive_screen_probability`` does not
+    teach R (it is returned with the prior R, for the engine's gate to reject); set it equal to
+    the block's ``gate_probability`` so that the plugin learns exactly from the ranges the
+    engine accepts. The plugin keeps these statistics between calls, so one instance serves one
+    filter run with its epochs in time order.
 
 UWB-only least squares (:func:`least_squares_solution`)
     The baseline of seed 004's "UWB-only" solution. The ranges are grouped in consecutive
