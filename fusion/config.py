@@ -66,7 +66,15 @@ class FaultDetectionOptions(_Strict):
         " quantile: a fault is gross; mild model mismatch over hundreds of degrees of freedom"
         " is not",
     )
-    use_indicators: bool = Field(True, description="a suspect measurement isolates its local")
+    use_indicators: bool = Field(
+        True, description="a plugin's indicator, flagging for indicator_confirm_s, isolates"
+    )
+    indicator_confirm_s: float = Field(
+        2.0,
+        ge=0,
+        description="a plugin's indicator must flag this long without a break before it isolates"
+        " the local (a flagged epoch is down-weighted by its plugin meanwhile)",
+    )
     mean_test: bool = Field(
         True, description="also test each plugin's windowed mean whitened innovation (a bias)"
     )

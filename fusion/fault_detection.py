@@ -5,8 +5,21 @@ adds its normalized innovation squared NIS_k (χ² with m_k degrees of freedom w
 consistent) and the plugin's own indicator (``Measurement.suspect``, e.g. a magnetic field off
 the expected earth field). At time t the window statistic over the last ``window_s`` seconds is
 
-    T(t) = Σ NIS_k,   d(t) = Σ m_k,   fault ⇔ T(t) > s·χ²_{d(t)}(p)  or  (indicators on and
-                                                                  the latest update is suspect)
+    T(t) = Σ min(NIS_k, χ²_{m_k}(p)),   d(t) = Σ m_k,
+    fault ⇔ T(t) > s·χ²_{d(t)}(p)  or  (indicators on and the updates suspect for ≥ t_confirm)
+
+Each update's NIS is capped at its own χ² quantile: one outlier (a gated range, a single wild
+sample) adds at most that, so it takes a run of them to isolate a local. Uncapped, the two
+first samples of a magnetic disturbance (NIS 107 and 147) isolated the magnetometer before its
+indicator spoke, and the last CPOEM update of a recording that ended mid-pass (NIS 5 400)
+isolated CPOEM.
+
+A plugin's indicator isolates only when it persists (``indicator_confirm_s``, default 2 s):
+the plugin down-weights a suspect epoch itself (the magnetometer by the heading error the
+disturbance it sees can make), so a flag that comes and goes costs at most that epoch's
+information, while isolating at the first flag threw away a healthy sensor whenever its
+indicator was benignly off (a site field a few per cent from meta.yaml's) and never
+re-admitted it.
 
 The scale s ≥ 1 (``threshold_scale``, default 1.5) keeps the test for gross faults: over a window
 of hundreds of degrees of freedom the plain χ² quantile is exceeded by a 20 % excess of
@@ -212,6 +225,7 @@ class FaultMonitor:
         self._dof_sum = 0
         self._spread_sum = 0.0
         self._clean_since: float | None = None
+        self._flag_since: dict[str, float] = {}
         self._means: dict[str, _MeanWindow] = {}
         self._references: dict[str, _Reference] = {}
 
@@ -238,7 +252,10 @@ class FaultMonitor:
             mean_statistic = raw_mean[0] / reference.sum_factor(raw_mean[1])
             mean_threshold = chi2_threshold(whitened.size, opts.probability)
         statistic, threshold = self._window_chi_square(t, nis, dof, reference.rho())
-        flagged = opts.use_indicators and suspect
+        flagged = (
+            opts.use_indicators
+            and self._flagged_for(t, source, suspect) >= opts.indicator_confirm_s
+        )
         biased = mean_statistic > mean_threshold
         failing = statistic > threshold or flagged or biased
         if whitened is not None and whitened.size:
@@ -268,6 +285,14 @@ class FaultMonitor:
             return FaultEvent(t, self.local, statistic, threshold, READMIT, "consistent for hold")
         return None
 
+    def _flagged_for(self, t: float, source: str, suspect: bool) -> float:
+        """How long plugin ``source``'s indicator has flagged without a break (s; −inf: it does
+        not flag this update)."""
+        if not suspect:
+            self._flag_since.pop(source, None)
+            return -math.inf
+        return t - self._flag_since.setdefault(source, t)
+
     def forget(self) -> None:
         """Empty the windows (a jump taken in, :mod:`fusion.jumps`, explains what they hold);
         isolation and the clean time are kept."""
@@ -279,7 +304,9 @@ class FaultMonitor:
         self._failing = 0
 
     def _window_chi_square(self, t: float, nis: float, dof: int, rho: float) -> tuple[float, float]:
-        """Add one update to the local's window; return T(t) and its threshold."""
+        """Add one update to the local's window (its NIS capped at the χ²_m quantile); return
+        T(t) and its threshold."""
+        nis = min(nis, chi2_threshold(dof, self.options.probability))
         spread = dof * nis_variance_factor(rho)
         self._window.append((t, nis, dof, spread))
         self._nis_sum += nis

@@ -25,17 +25,25 @@ With ``C̃_b^n = (I − φ×) C_b^n`` and ``B̃^b = C_n^b B^n + v``, ``u = B^n +
 The seed's ``H = [0, 0, 1]`` (eq. 26) keeps only the last term. The tilt terms do not vanish:
 a tilt error about magnetic east turns part of the vertical field (larger than the horizontal
 one for I > 45°) into the horizontal plane; at I = 54° a 0.1° tilt error moves ψ_mag by 0.14°.
-They are modelled here. H is evaluated at the *expected* field (meta.yaml's D and I; without
-``inclination_deg``, the mean measured dip of the earlier samples), not at the measured ``u``:
-an H built from the noisy sample is correlated with the noise of the same sample's z, so
-``E[K ν] ≠ 0`` and every update pushes the state the same way — on seed003-brokenline that
-walked the tilt along its unobservable tilt/accelerometer-bias direction at 0.003°/s. The white
-field noise (σ_B per axis, rotated isotropically; its horizontal component across the field
-moves the heading) gives ``R_0 = σ_B² / (F cos I)²`` (F: meta.yaml's ``field_uT``, else the
-measured norm). Optionally (``declination_sigma_deg``
-> 0) the plugin owns the error of the declination in meta.yaml, ``δD = D_meta − D_true``, a
-random constant with ``H_δD = −1`` (seed 003 ignores it; an unmodelled declination error biases
-the heading).
+They are modelled here. H is evaluated at the *expected* field (meta.yaml's D and the learned
+site dip below), not at the measured ``u``: an H built from the noisy sample is correlated
+with the noise of the same sample's z, so ``E[K ν] ≠ 0`` and every update pushes the state the
+same way — on seed003-brokenline that walked the tilt along its unobservable
+tilt/accelerometer-bias direction at 0.003°/s. The white field noise (σ_B per axis, rotated
+isotropically; its horizontal component across the field moves the heading) gives
+``R_0 = σ_B² / (F cos I)²`` (F, I: the learned site field).
+
+**Heading biases.** A calibrated magnetometer still carries a residual hard iron ``h`` (a body
+field of 1–2 µT: up to 4° of heading against a 30 µT horizontal field) and meta.yaml's
+declination its model error (~0.5° globally, more near anomalies underground); seed 003
+ignores both, and a filter that does believes a biased heading to a fraction of a degree. The
+plugin owns them as random constants (prior σ ``hard_iron_sigma_uT``, ``declination_sigma_deg``;
+0 drops a block): ``δD = D_meta − D_true`` with ``H_δD = −1``, and the hard iron itself with
+``u = C̃ (B̃ − v) + C̃ h``, so ``∂z/∂h = gᵀ C̃_b^n``, ``g = [cos D, −sin D, 0] / (F cos I)`` (the
+heading's gradient at the expected field). A shearer that keeps its heading cannot separate
+the two from each other or from its heading (their sum stays at its prior); a vehicle that
+turns observes the hard iron from the heading-dependent error it makes. Soft iron (±2 %) adds
+a second-harmonic error of ~1° that the hard-iron states absorb while the attitude is steady.
 
 **Adaptive R** (eq. 32), over the last N innovations ``e = z − H x̂`` (``x̂`` the filter's
 current estimate) of this plugin, the current one excluded:
@@ -51,31 +59,41 @@ datasheet allows; it only inflates R when the innovations say so (interference, 
 Until N innovations exist, ``R = R_0``. ``off`` uses ``R_0`` throughout.
 
 **Disturbance indicator.** The field norm ``|B̃^b|`` (attitude-free) and the dip angle
-``d = atan2(−u_U, |u_h|)`` (depends on the SINS tilt only) against the expected earth field of
-meta.yaml (``magnetometer.field_uT``, ``inclination_deg``)::
+``d = atan2(−u_U, |u_h|)`` (depends on the SINS tilt only) against the *site* field, learned
+from the data: each is a scalar Kalman filter (:class:`LearnedValue`) started at meta.yaml's
+``field_uT`` / ``inclination_deg`` with the prior σ ``field_model_sigma_uT`` /
+``inclination_model_sigma_deg`` (none in meta.yaml: the first sample), drifting by its
+tolerance over ``reference_drift_s``, and taught by every sample that passes the test::
 
-    q = (|B̃| − F)² / σ_F² + (d − I)² / σ_d²,    suspect if q > χ²_k(p)   (k = terms available)
+    q = (|B̃| − F̂)² / (P_F + r_F) + (d − Î)² / (P_I + r_I),     suspect if q > χ²_2(p)
 
-    σ_F² = σ_B² + σ_F,model²,    σ_d² = σ_B²/F² + σ_I,model² + g P_φ gᵀ,   g = [u_N, −u_E, 0]/|u_h|
+    r_F = σ_B² + τ_F²,    r_I = σ_B²/F² + τ_I² + g P_φ gᵀ,   g = [u_N, −u_E, 0]/|u_h|
 
-(the noise along and across the field; the uncertainty of the earth-field model; ``g`` is the
-dip's sensitivity to the SINS tilt error φ, so the tilt covariance widens the dip test). With
-the defaults — σ_B = 0.1 µT (MTi-30, the simulator's ``noise_sigma_uT``), model σ 0.15 µT and
-0.2° (WMM-class accuracy), p = 0.9999 (χ²₂ = 18.4) — the norm test alone trips at 0.8 µT
-(1.5 % of a 53 µT field) and the dip test at ≈ 0.9° with a 0.1° tilt σ. The
-simulator's interference (``magnetic_interference``, an additive body-frame field) changes
-both; a rotation of the field about the vertical changes neither, so a disturbance fading out
-(the simulator's ramps) passes under the threshold while it still turns the heading by degrees:
+(P the learned values' variances; τ the benign spread ``field_tolerance_uT``,
+``inclination_tolerance_deg`` that residual hard and soft iron make as the attitude changes;
+``g`` is the dip's sensitivity to the SINS tilt error φ, so the tilt covariance widens the dip
+test). A field a few per cent off meta.yaml's is thus the site's field, learned within seconds,
+not a disturbance that never ends: only a *change* of the field trips the test — with the
+defaults (σ_B 0.1 µT, τ 0.5 µT and 0.5°, p = 0.9999, χ²₂ = 18.4) ≈ 2.2 µT of norm or ≈ 2.3°
+of dip; a board carried through all attitudes (BROAD) sees more benign spread than a machine
+that keeps its heading, and sets a larger τ.
+A rotation of the field about the vertical changes neither, so a disturbance fading out (the
+simulator's ramps) passes under the threshold while it still turns the heading by degrees:
 the flag is held ``indicator_hold_s`` (1 s) after the test last tripped. A suspect epoch is
-still returned with ``suspect=True`` (the federated master isolates the local filter; the
-centralized filter logs it) unless ``skip_suspect`` is set; skipped epochs do not enter the
-adaptive window.
+*down-weighted*: the least disturbance field ``d = √(ΔF² + (F̂ ΔI)²)`` that explains the
+deviation turns the heading by up to ``d / (F cos I)``, and its component across the
+horizontal field, which neither test sees, can be as large again: ``(2 d / (F cos I))²`` is
+added to R (the
+centralized filter then barely moves; the federated master isolates the local only when the
+flags persist, :mod:`fusion.fault_detection`). With ``skip_suspect`` suspect epochs are not
+applied at all. Suspect epochs teach neither the site field nor the adaptive R.
 """
 
 from __future__ import annotations
 
 import math
 from collections import deque
+from dataclasses import dataclass
 from typing import Literal
 
 import numpy as np
@@ -99,20 +117,46 @@ class MagnetometerOptions(PluginOptions):
         "200 µG/√Hz over 25 Hz = 0.1 µT",
     )
     declination_sigma_deg: float = Field(
-        0.0, ge=0, description="> 0: estimate the error of meta.yaml's declination (prior σ)"
+        1.0,
+        ge=0,
+        description="> 0: estimate the error of meta.yaml's declination (prior σ; a global model"
+        " is good to ~0.5°, local anomalies underground add as much)",
+    )
+    hard_iron_sigma_uT: float = Field(
+        1.0,
+        ge=0,
+        description="> 0: estimate the residual hard iron per body axis (prior σ, µT; a"
+        " calibration leaves 1–2 µT in some direction, ≈ 1 µT per axis)",
     )
     adaptive_noise: Literal["sage_husa", "window", "off"] = Field(
         "sage_husa", description="innovation-window R (eq. 32): Sage–Husa, the seed's, or none"
     )
     adaptive_window: int = Field(50, ge=2, description="N innovations of the adaptive R")
     disturbance_indicator: bool = Field(
-        True, description="test field norm and dip against meta.yaml's expected earth field"
+        True, description="test field norm and dip against the site's earth field"
     )
     field_model_sigma_uT: float = Field(
-        0.15, ge=0, description="uncertainty of meta.yaml's field_uT (WMM-class model: ~0.15)"
+        2.5,
+        ge=0,
+        description="prior σ of meta.yaml's field_uT as the site's field (µT; a global model is"
+        " good to ~0.15 µT, the field at a machine underground differs by a few per cent)",
     )
     inclination_model_sigma_deg: float = Field(
-        0.2, ge=0, description="uncertainty of meta.yaml's inclination_deg (WMM-class: ~0.2)"
+        2.0, ge=0, description="prior σ of meta.yaml's inclination_deg as the site's dip"
+    )
+    field_tolerance_uT: float = Field(
+        0.5,
+        ge=0,
+        description="benign spread of the field norm about the site's (µT): residual hard and"
+        " soft iron change it with the attitude",
+    )
+    inclination_tolerance_deg: float = Field(
+        0.5, ge=0, description="benign spread of the dip about the site's (deg)"
+    )
+    reference_drift_s: float = Field(
+        60.0,
+        gt=0,
+        description="the learned site field may drift by its tolerance over this time (s)",
     )
     indicator_probability: float = Field(
         0.9999, gt=0, lt=1, description="χ² quantile of the indicator test"
@@ -123,6 +167,43 @@ class MagnetometerOptions(PluginOptions):
     skip_suspect: bool = Field(
         False, description="do not apply suspect epochs (default: apply them, flagged)"
     )
+
+
+@dataclass
+class LearnedValue:
+    """A slowly drifting scalar learned from measurements (a scalar Kalman filter).
+
+    ``value`` starts at the prior (``variance`` its variance; infinite: taken from the first
+    measurement) and drifts as a random walk of ``drift`` variance per second; each learned
+    measurement ``y`` of variance ``r`` updates it. :meth:`distance` is the squared
+    Mahalanobis distance of a measurement from it (prior variance plus ``r``).
+    """
+
+    value: float
+    variance: float
+    drift: float
+    t_last: float | None = None
+
+    def predict(self, t: float) -> None:
+        """Let the value drift up to time ``t``."""
+        if self.t_last is not None:
+            self.variance += self.drift * max(t - self.t_last, 0.0)
+        self.t_last = t
+
+    def distance(self, y: float, r: float) -> float:
+        """``(y − value)² / (variance + r)`` (0 before any value is known)."""
+        if not math.isfinite(self.variance):
+            return 0.0
+        return (y - self.value) ** 2 / (self.variance + r)
+
+    def learn(self, y: float, r: float) -> None:
+        """Update with measurement ``y`` of variance ``r``."""
+        if not math.isfinite(self.variance):
+            self.value, self.variance = y, r
+            return
+        gain = self.variance / (self.variance + r)
+        self.value += gain * (y - self.value)
+        self.variance *= 1.0 - gain
 
 
 class Magnetometer(Plugin):
@@ -139,32 +220,45 @@ class Magnetometer(Plugin):
                 " meta.yaml in the recording"
             )
         self.data = recording.magnetometer
-        meta = recording.meta.magnetometer
-        self.declination = math.radians(meta.declination_deg)
-        self.field_norm = meta.field_uT
-        self.inclination = (
-            None if meta.inclination_deg is None else math.radians(meta.inclination_deg)
-        )
-        if options.disturbance_indicator and self.field_norm is None and self.inclination is None:
-            raise ValueError(
-                f"plugin {name!r}: disturbance_indicator needs the expected earth field in"
-                " meta.yaml (magnetometer.field_uT and/or magnetometer.inclination_deg);"
-                " give it or set disturbance_indicator: false"
-            )
-        dof = (self.field_norm is not None) + (self.inclination is not None)
-        self.indicator_threshold = chi2_threshold(dof, options.indicator_probability)
-        # Adaptive R: (e², H P⁻ Hᵀ) of the last N epochs of this pass.
-        self._window: deque[tuple[float, float]] = deque(maxlen=options.adaptive_window)
+        self.meta = recording.meta.magnetometer
+        self.declination = math.radians(self.meta.declination_deg)
+        self.indicator_threshold = chi2_threshold(2, options.indicator_probability)
+        self.declination_block = f"{name}.declination_error"
+        self.hard_iron_block = f"{name}.hard_iron"
+        self._start_pass()
+
+    def _start_pass(self) -> None:
+        """Forget what a pass over the recording learned (adaptive R, site field, flags)."""
+        opts, meta = self.options, self.meta
+        self._window: deque[tuple[float, float]] = deque(maxlen=opts.adaptive_window)
         self._last_index = -1
-        self._dip_sum, self._dip_count = 0.0, 0
         self._suspect_until = -math.inf
+        self._disturbance_uT = 0.0
+        tolerance_dip = math.radians(opts.inclination_tolerance_deg)
+        self.site_norm = LearnedValue(
+            meta.field_uT if meta.field_uT is not None else 0.0,
+            opts.field_model_sigma_uT**2 if meta.field_uT is not None else math.inf,
+            opts.field_tolerance_uT**2 / opts.reference_drift_s,
+        )
+        self.site_dip = LearnedValue(
+            math.radians(meta.inclination_deg) if meta.inclination_deg is not None else 0.0,
+            math.radians(opts.inclination_model_sigma_deg) ** 2
+            if meta.inclination_deg is not None
+            else math.inf,
+            tolerance_dip**2 / opts.reference_drift_s,
+        )
 
     def state_blocks(self) -> tuple[StateBlock, ...]:
-        """The declination error δD when ``declination_sigma_deg`` > 0 (a random constant)."""
-        if self.options.declination_sigma_deg == 0.0:
-            return ()
-        sigma = math.radians(self.options.declination_sigma_deg)
-        return (StateBlock(f"{self.name}.declination_error", ("d",), (sigma,)),)
+        """The declination error δD (``declination_sigma_deg`` > 0) and the residual hard iron
+        h (``hard_iron_sigma_uT`` > 0), random constants."""
+        blocks = []
+        if self.options.declination_sigma_deg > 0.0:
+            sigma = math.radians(self.options.declination_sigma_deg)
+            blocks.append(StateBlock(self.declination_block, ("d",), (sigma,)))
+        if self.options.hard_iron_sigma_uT > 0.0:
+            sigma = self.options.hard_iron_sigma_uT
+            blocks.append(StateBlock(self.hard_iron_block, ("x", "y", "z"), (sigma,) * 3))
+        return tuple(blocks)
 
     def epochs(self) -> NDArray[np.float64]:
         """The magnetometer sample times."""
@@ -177,84 +271,96 @@ class Magnetometer(Plugin):
         levelled = dcm_from_euler(roll, pitch, 0.0) @ self.data.field[index]
         return math.atan2(-levelled[0], levelled[1]) + self.declination
 
-    def indicator_statistic(
-        self, field_b: NDArray[np.float64], u: NDArray[np.float64], p_attitude: NDArray[np.float64]
-    ) -> float:
-        """χ² statistic ``q`` of the field norm and dip against the expected earth field.
+    def indicator(
+        self, t: float, field_b: NDArray[np.float64], u: NDArray[np.float64], p_att: NDArray
+    ) -> tuple[float, float]:
+        """χ² statistic ``q`` of the field norm and dip against the learned site field, and the
+        least disturbance field that explains their deviation (µT); a sample that passes
+        teaches the site field (module docstring).
 
         Parameters
         ----------
+        t
+            Sample time (s).
         field_b
             Measured body field (µT).
         u
             The same field rotated into n by the SINS attitude (µT).
-        p_attitude
+        p_att
             Covariance of φ (rad²).
         """
         opts = self.options
-        sigma_b2 = opts.sigma_field_uT**2
-        q = 0.0
-        if self.field_norm is not None:
-            var_norm = sigma_b2 + opts.field_model_sigma_uT**2
-            q += (float(np.linalg.norm(field_b)) - self.field_norm) ** 2 / var_norm
-        if self.inclination is not None:
-            horizontal = math.hypot(u[0], u[1])
-            dip = math.atan2(-u[2], horizontal)
-            g = np.array([u[1], -u[0], 0.0]) / horizontal
-            norm = self.field_norm if self.field_norm is not None else float(np.linalg.norm(u))
-            var_dip = (
-                sigma_b2 / norm**2
-                + math.radians(opts.inclination_model_sigma_deg) ** 2
-                + float(g @ p_attitude @ g)
-            )
-            q += (dip - self.inclination) ** 2 / var_dip
-        return q
+        norm = float(np.linalg.norm(field_b))
+        horizontal = math.hypot(u[0], u[1])
+        dip = math.atan2(-u[2], horizontal)
+        g = np.array([u[1], -u[0], 0.0]) / horizontal
+        self.site_norm.predict(t)
+        self.site_dip.predict(t)
+        r_norm = opts.sigma_field_uT**2 + opts.field_tolerance_uT**2
+        r_dip = (
+            opts.sigma_field_uT**2 / norm**2
+            + math.radians(opts.inclination_tolerance_deg) ** 2
+            + float(g @ p_att @ g)
+        )
+        q = self.site_norm.distance(norm, r_norm) + self.site_dip.distance(dip, r_dip)
+        if q > self.indicator_threshold:
+            site = self.site_norm.value if math.isfinite(self.site_norm.variance) else norm
+            return q, math.hypot(norm - site, site * (dip - self.site_dip.value))
+        self.site_norm.learn(norm, r_norm)
+        self.site_dip.learn(dip, r_dip)
+        return q, 0.0
 
     def measure(self, index: int, ctx: MeasurementContext) -> Measurement | None:
         """Heading residual ``ψ̃ − ψ_mag`` with its full H, adaptive R and indicator flag."""
         if index <= self._last_index:  # a new pass over the recording
-            self._window.clear()
-            self._dip_sum, self._dip_count = 0.0, 0
-            self._suspect_until = -math.inf
+            self._start_pass()
         self._last_index = index
         opts = self.options
         field_b = self.data.field[index]
         u = ctx.c_b_n @ field_b
         att = ctx.layout.slice(ATTITUDE)
-        if opts.disturbance_indicator and (
-            self.indicator_statistic(field_b, u, ctx.covariance[att, att])
-            > self.indicator_threshold
-        ):
-            self._suspect_until = ctx.t + opts.indicator_hold_s
+        if opts.disturbance_indicator:
+            _, disturbance = self.indicator(ctx.t, field_b, u, ctx.covariance[att, att])
+            if disturbance > 0.0:
+                self._suspect_until = ctx.t + opts.indicator_hold_s
+                self._disturbance_uT = disturbance
         suspect = ctx.t <= self._suspect_until
-        dip = self._linearization_dip(u, suspect)
         if suspect and opts.skip_suspect:
             return None
+        norm, dip = self._site_field(field_b, u)
         yaw = euler_from_dcm(ctx.c_b_n)[2]
         z = np.array([wrap_angle(yaw - self.magnetic_heading(index, ctx.c_b_n))])
         h = np.zeros((1, ctx.layout.dim))
         tan_dip = math.tan(dip)
-        h[0, att] = [tan_dip * math.sin(self.declination), tan_dip * math.cos(self.declination), 1]
+        sin_d, cos_d = math.sin(self.declination), math.cos(self.declination)
+        h[0, att] = [tan_dip * sin_d, tan_dip * cos_d, 1]
+        horizontal = norm * math.cos(dip)
         if opts.declination_sigma_deg > 0.0:
-            h[0, ctx.layout.slice(f"{self.name}.declination_error")] = -1.0
-        norm = self.field_norm if self.field_norm is not None else float(np.linalg.norm(field_b))
-        floor = (opts.sigma_field_uT / (norm * math.cos(dip))) ** 2
+            h[0, ctx.layout.slice(self.declination_block)] = -1.0
+        if opts.hard_iron_sigma_uT > 0.0:  # z = heading(C̃ (B + h)) − D: ∂/∂h = gᵀ C̃
+            g = np.array([cos_d, -sin_d, 0.0]) / horizontal
+            h[0, ctx.layout.slice(self.hard_iron_block)] = g @ ctx.c_b_n
+        floor = (opts.sigma_field_uT / horizontal) ** 2
         r = self._adaptive_variance(floor)
-        innovation = float(z[0] - h[0] @ ctx.x)
-        self._window.append((innovation**2, float(h[0] @ ctx.covariance @ h[0])))
+        if suspect:  # down-weight: the disturbance seen, and as much again unseen (module doc)
+            r += (2.0 * self._disturbance_uT / horizontal) ** 2
+        else:
+            innovation = float(z[0] - h[0] @ ctx.x)
+            self._window.append((innovation**2, float(h[0] @ ctx.covariance @ h[0])))
         return Measurement(z, h, np.array([[r]]), suspect=suspect)
 
-    def _linearization_dip(self, u: NDArray[np.float64], suspect: bool) -> float:
-        """The dip of the expected field: meta.yaml's inclination, or else the mean measured dip
-        of the earlier unsuspected samples of this pass (this sample's before there is one)."""
-        if self.inclination is not None:
-            return self.inclination
-        measured = math.atan2(-u[2], math.hypot(u[0], u[1]))
-        dip = self._dip_sum / self._dip_count if self._dip_count else measured
-        if not suspect:
-            self._dip_sum += measured
-            self._dip_count += 1
-        return dip
+    def _site_field(
+        self, field_b: NDArray[np.float64], u: NDArray[np.float64]
+    ) -> tuple[float, float]:
+        """Norm (µT) and dip (rad) of the site field the model is linearized at: the learned
+        ones, or this sample's before anything is learned."""
+        norm = self.site_norm.value if math.isfinite(self.site_norm.variance) else None
+        dip = self.site_dip.value if math.isfinite(self.site_dip.variance) else None
+        if norm is None:
+            norm = float(np.linalg.norm(field_b))
+        if dip is None:
+            dip = math.atan2(-u[2], math.hypot(u[0], u[1]))
+        return norm, dip
 
     def _adaptive_variance(self, floor: float) -> float:
         """R from the innovation window (eq. 32, see the module docstring), at least ``floor``."""

@@ -14,6 +14,7 @@ this plugin avoids by linearizing at the expected field); the short recordings l
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -44,6 +45,8 @@ DECLINATION, INCLINATION, FIELD = -6.0, 54.0, 53.0
 SHORT = ["static_start_s=30", "duration_s=100"]
 """Short seed003-brokenline runs: 30 s static, then 68 s along the broken line."""
 SEEDS = range(20)
+NO_BIASES: dict[str, Any] = {"hard_iron_sigma_uT": 0.0, "declination_sigma_deg": 0.0}
+"""Options without the heading-bias states (tests of one mechanism in isolation)."""
 
 
 def _earth_field(declination_deg: float = DECLINATION) -> np.ndarray:
@@ -92,28 +95,31 @@ def test_heading_follows_the_recording_attitude_convention(yaw_deg: float) -> No
 @pytest.mark.parametrize("inclination_in_meta", [True, False])
 def test_h_matches_numerical_differentiation(inclination_in_meta: bool) -> None:
     """z(δx) − z(0) = H δx to first order through a perturbed SINS state: the tilt columns
-    ``[tan I sin D, tan I cos D]`` as well as yaw, and the declination-error state.
+    ``[tan I sin D, tan I cos D]`` as well as yaw, the declination error and the hard iron.
 
-    The declination error is a parameter of the truth: meta.yaml's declination is the true one
-    plus δD. Without ``inclination_deg`` the plugin linearizes at the measured dip.
+    The declination error and the hard iron are parameters of the truth: meta.yaml's
+    declination is the true one plus δD, and the sensor reads the earth field plus h.
+    Without ``inclination_deg`` the plugin linearizes at the measured dip.
     """
     c_b_n = dcm_from_euler(0.05, -0.08, math.radians(124.0))
-    options = MagnetometerOptions(declination_sigma_deg=1.0)
+    options = MagnetometerOptions()
     layout = layout_with(
         Magnetometer(
             "mag", options, _recording([c_b_n.T @ _earth_field()], inclination=True)
         ).state_blocks()
     )
+    declination = layout.slice("mag.declination_error").start
+    hard_iron = layout.slice("mag.hard_iron")
 
     def measure(dx: np.ndarray) -> Measurement:
         # True declination D_meta − δD: the earth field the sensor sees turns with it.
-        true_field = _earth_field(DECLINATION - math.degrees(dx[15]))
-        rec = _recording([c_b_n.T @ true_field], inclination=inclination_in_meta)
+        true_field = _earth_field(DECLINATION - math.degrees(dx[declination]))
+        rec = _recording([c_b_n.T @ true_field + dx[hard_iron]], inclination=inclination_in_meta)
         m = Magnetometer("mag", options, rec).measure(0, perturbed_context(layout, dx, c_b_n=c_b_n))
         assert m is not None
         return m
 
-    steps = np.array([1e-3] * 3 + [1e-5] * 3 + [1e-2] * 3 + [1e-5] * 6 + [1e-5])
+    steps = np.array([1e-3] * 3 + [1e-5] * 3 + [1e-2] * 3 + [1e-5] * 6 + [1e-5] + [1e-3] * 3)
     numeric = numerical_jacobian(lambda dx: measure(dx).z, layout.dim, steps)
     h = measure(np.zeros(layout.dim)).H
     np.testing.assert_allclose(h, numeric, atol=1e-7)
@@ -155,7 +161,7 @@ def test_adaptive_noise_follows_eq32_with_the_sensor_noise_floor() -> None:
     sigma_att = 1e-3
     hph = (math.tan(math.radians(INCLINATION)) ** 2 + 1.0) * sigma_att**2  # P_φ = σ² I
     for mode in ("window", "sage_husa", "off"):
-        opts = MagnetometerOptions(adaptive_noise=mode, adaptive_window=n)
+        opts = MagnetometerOptions(adaptive_noise=mode, adaptive_window=n, **NO_BIASES)
         run = _window_run(opts, errors, sigma_att, passes=2)
         r = np.array([m.R[0, 0] for m in run])
         # The tilt is error-free and x = 0, so z and the innovation are the yaw error.
@@ -168,66 +174,107 @@ def test_adaptive_noise_follows_eq32_with_the_sensor_noise_floor() -> None:
             assert r[3 * n + k] == pytest.approx(want, rel=1e-6), (mode, "second pass", k)
         assert mode == "off" or r[n : 3 * n].min() > 10 * floor
     # Quiet innovations (far below the sensor noise) leave R at the floor.
-    opts = MagnetometerOptions(adaptive_noise="sage_husa", adaptive_window=n)
+    opts = MagnetometerOptions(adaptive_noise="sage_husa", adaptive_window=n, **NO_BIASES)
     quiet = _window_run(opts, 1e-5 * rng.standard_normal(2 * n), sigma_att)
     np.testing.assert_allclose([m.R[0, 0] for m in quiet], floor)
 
 
-def test_indicator_flags_field_norm_and_dip_holds_and_skip_suspect_drops() -> None:
-    """Clean samples (0.1 µT noise) pass; a field 2 µT stronger, or the same norm tilted by 2°
-    in dip, trips the χ² test, and the flag is held for 1 s after the trip; ``skip_suspect``
-    then returns no measurement. The SINS tilt σ is 0.1° (the dip test widens with it)."""
+def _indicator_run(
+    options: MagnetometerOptions, n_field: list[np.ndarray], recording_field: float = FIELD
+) -> list[Measurement | None]:
+    """Measurements of noisy (0.1 µT) samples of the ENU fields ``n_field`` at a fixed
+    attitude, meta.yaml stating ``recording_field``; the SINS tilt σ is 0.1°."""
     c_b_n = dcm_from_euler(0.02, 0.03, math.radians(124.0))
     rng = np.random.default_rng(7)
+    fields = [c_b_n.T @ f + 0.1 * rng.standard_normal(3) for f in n_field]
+    rec = _recording(fields)
+    assert rec.meta.magnetometer is not None
+    meta = rec.meta.model_copy(
+        update={
+            "magnetometer": rec.meta.magnetometer.model_copy(update={"field_uT": recording_field})
+        }
+    )
+    plugin = Magnetometer("magnetometer", options, replace(rec, meta=meta))
+    layout = layout_with(plugin.state_blocks())
+    covariance = layout.initial_covariance()
+    covariance[3:6, 3:6] = math.radians(0.1) ** 2 * np.eye(3)
+    return [
+        plugin.measure(
+            k,
+            perturbed_context(
+                layout, np.zeros(layout.dim), t=t, c_b_n=c_b_n, covariance=covariance
+            ),
+        )
+        for k, t in enumerate(plugin.epochs())
+    ]
+
+
+def test_indicator_flags_field_changes_holds_down_weights_and_skip_suspect_drops() -> None:
+    """Clean samples (0.1 µT noise) pass; a field 6 µT stronger, or the same norm tilted by 6°
+    in dip, trips the χ² test against the learned site field, and the flag is held for 1 s after
+    the trip; a flagged epoch's R grows by the heading error the disturbance can make
+    (``skip_suspect`` returns no measurement instead)."""
     earth = _earth_field()
     east = np.array([math.cos(math.radians(DECLINATION)), -math.sin(math.radians(DECLINATION)), 0])
-    dipped = Rotation.from_rotvec(math.radians(2.0) * east).apply(earth)  # same norm, dip +2°
-    stronger = earth * (FIELD + 2.0) / FIELD
+    dipped = Rotation.from_rotvec(math.radians(6.0) * east).apply(earth)  # same norm, dip +6°
+    stronger = earth * (FIELD + 6.0) / FIELD
     n_field = [earth] * 500 + [stronger] + [earth] * 100 + [dipped] + [earth] * 100
-    fields = [c_b_n.T @ f + 0.1 * rng.standard_normal(3) for f in n_field]
     tripped = {500, 601}
-    expected = np.zeros(len(fields), dtype=bool)
+    expected = np.zeros(len(n_field), dtype=bool)
     for k in tripped:
         expected[k : k + 51] = True  # 1 s hold at 50 Hz (the held flag includes t + 1 s)
+    horizontal = FIELD * math.cos(math.radians(INCLINATION))
     for skip in (False, True):
-        plugin = Magnetometer(
-            "magnetometer", MagnetometerOptions(skip_suspect=skip), _recording(fields)
-        )
-        layout = layout_with(plugin.state_blocks())
-        covariance = layout.initial_covariance()
-        covariance[3:6, 3:6] = math.radians(0.1) ** 2 * np.eye(3)
-        results = [
-            plugin.measure(
-                k,
-                perturbed_context(
-                    layout, np.zeros(layout.dim), t=t, c_b_n=c_b_n, covariance=covariance
-                ),
-            )
-            for k, t in enumerate(plugin.epochs())
-        ]
+        results = _indicator_run(MagnetometerOptions(skip_suspect=skip), n_field)
         if skip:
             np.testing.assert_array_equal([m is None for m in results], expected)
-        else:
-            assert all(m is not None for m in results)
-            np.testing.assert_array_equal([m.suspect for m in results if m], expected)
+            continue
+        assert all(m is not None for m in results)
+        measured = [m for m in results if m is not None]
+        np.testing.assert_array_equal([m.suspect for m in measured], expected)
+        r = np.array([m.R[0, 0] for m in measured])
+        assert np.all(r[500:551] > (5.5 / horizontal) ** 2)  # the 6 µT disturbance: ≥ 10° σ
+        assert np.all(r[601:652] > (0.1 * FIELD / horizontal) ** 2)  # 6° of dip: ≈ 5.5 µT
+        assert np.all(r[~expected] < (0.5 / horizontal) ** 2)
 
 
-def test_missing_stream_and_missing_earth_field_are_named() -> None:
-    rec = _recording([_earth_field()])
+def test_indicator_learns_a_site_field_off_meta() -> None:
+    """meta.yaml states a field 4 % weaker than the site's (and the site's dip): the site field
+    is learned at once and nothing is flagged, while a 6 µT change later still is."""
+    earth = _earth_field()
+    stronger = earth * (FIELD + 6.0) / FIELD
+    results = _indicator_run(
+        MagnetometerOptions(), [earth] * 500 + [stronger] * 10, recording_field=0.96 * FIELD
+    )
+    suspect = np.array([m is not None and m.suspect for m in results])
+    assert not suspect[:500].any()
+    assert suspect[500:].all()
+
+
+def test_missing_stream_is_named_and_a_missing_earth_field_is_learned() -> None:
+    """Without magnetometer.csv the plugin names it; without meta.yaml's field_uT and
+    inclination_deg the site field is the first sample's, and a later 6 µT change is flagged."""
+    earth = _earth_field()
+    c_b_n = dcm_from_euler(0.02, 0.03, math.radians(124.0))
+    rec = _recording([c_b_n.T @ earth] * 50 + [c_b_n.T @ earth * (FIELD + 6.0) / FIELD])
     bare = Recording(path=None, meta=rec.meta, imu=rec.imu)
     with pytest.raises(ValueError, match=r"magnetometer\.csv"):
         Magnetometer("magnetometer", MagnetometerOptions(), bare)
+    assert rec.meta.magnetometer is not None
     meta = rec.meta.model_copy(
         update={
-            "magnetometer": rec.meta.magnetometer.model_copy(  # type: ignore[union-attr]
+            "magnetometer": rec.meta.magnetometer.model_copy(
                 update={"field_uT": None, "inclination_deg": None}
             )
         }
     )
-    no_field = Recording(path=None, meta=meta, imu=rec.imu, magnetometer=rec.magnetometer)
-    with pytest.raises(ValueError, match=r"field_uT.*inclination_deg.*disturbance_indicator"):
-        Magnetometer("magnetometer", MagnetometerOptions(), no_field)
-    Magnetometer("magnetometer", MagnetometerOptions(disturbance_indicator=False), no_field)
+    plugin = Magnetometer("magnetometer", MagnetometerOptions(), replace(rec, meta=meta))
+    layout = layout_with(plugin.state_blocks())
+    results = [
+        plugin.measure(k, perturbed_context(layout, np.zeros(layout.dim), t=t, c_b_n=c_b_n))
+        for k, t in enumerate(plugin.epochs())
+    ]
+    assert [m is not None and m.suspect for m in results] == [False] * 50 + [True]
 
 
 # ---------------------------------------------------------------------------------------------
@@ -297,13 +344,17 @@ def test_magnetometer_runs_are_consistent(monte_carlo: dict[str, Any]) -> None:
 
 @pytest.mark.slow
 def test_magnetometer_bounds_yaw_and_position_error(monte_carlo: dict[str, Any]) -> None:
-    """Seed 003 §5.2: SINS/OD/MAG against SINS/OD — the yaw error stays bounded (< 1° in every
+    """Seed 003 §5.2: SINS/OD/MAG against SINS/OD — the yaw error stays bounded (< 2° in every
     run once the first 5 s have drawn in the 1° initial yaw error), the yaw RMS falls by more
-    than half and the east/north RMS position error drops. The seed reports ~75 % for the
-    position; its SINS/OD had no stop calibration. With the odometer's zero-angular-rate update
-    at stops in both configurations the gyro biases are learned before the first drive and the
-    magnetometer adds less: measured yaw RMS 0.97° → 0.18°, east/north RMS −10 % / −17 %
-    (without the stop calibration it was −63 % / −78 %)."""
+    than 30 % on average and in at least 3/4 of the runs, and the east/north RMS position error
+    drops. The seed reports ~75 % for the
+    position; its SINS/OD had no stop calibration, and its magnetometer was taken as unbiased.
+    Here the plugin estimates the residual hard iron (1 µT per axis) and the declination error
+    (1°) it cannot know, which the 68 s of the broken line observe only in part (the simulator
+    has neither): measured yaw RMS 0.98° → 0.55°, east/north RMS −7 % / −27 %, max |yaw error|
+    1.6°. Taking the magnetometer as unbiased gave 0.18° here, and 1.6 m of horizontal error
+    (against 0.56 m with the biases estimated) on a face whose meta.yaml declination was 0.7°
+    off."""
     rms = {
         k: np.array([[*np.sqrt(np.mean(p**2, axis=0)), np.sqrt(np.mean(y**2))] for _, p, y in runs])
         for k, runs in (("mag", monte_carlo["mag"]), ("od", monte_carlo["od"]))
@@ -320,9 +371,9 @@ def test_magnetometer_bounds_yaw_and_position_error(monte_carlo: dict[str, Any])
         "max |yaw err| with MAG (deg)",
         np.round(max_yaw.max(), 3),
     )
-    assert np.all(max_yaw < 1.0)
-    assert np.all(rms["mag"][:, 2] < rms["od"][:, 2])
-    assert np.mean(rms["mag"][:, 2]) < 0.5 * np.mean(rms["od"][:, 2])
+    assert np.all(max_yaw < 2.0)
+    assert np.mean(rms["mag"][:, 2] < rms["od"][:, 2]) >= 0.75
+    assert np.mean(rms["mag"][:, 2]) < 0.7 * np.mean(rms["od"][:, 2])
     assert np.all(reduction > 0.0)
 
 
