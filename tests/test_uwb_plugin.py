@@ -79,7 +79,7 @@ def _recording(
     streams: dict[str, Any] = {}
     if with_uwb:
         streams["uwb"] = {
-            "rate_hz": 40.0,
+            "rate_hz": 40.0 * len(anchors),  # all anchors together: 40 Hz each
             "tag_lever_arm_b_m": list(lever_arm),
             "anchors": anchors,
         }
