@@ -379,22 +379,19 @@ class Engine:
         opts = self.config.smoother
         if opts.mode == "off":
             return None
-        ends = np.empty(0)
-        if opts.mode == "online":
-            reported = [e for p in self.plugins if (e := p.window_ends()) is not None]
-            if not reported:
-                raise ConfigError(
-                    "config key smoother.mode: online smoothing needs a plugin that reports"
-                    " window ends (face ends), e.g. cpoem; none of the configured plugins does"
-                )
-            ends = np.sort(np.concatenate(reported))
-            if ends.size == 0:
-                _log.warning(
-                    "%s: no window end (face end) in this recording; online smoothing closes"
-                    " one window at its end",
-                    self.recording.meta.name,
-                )
-        return WindowedSmoother(bank.smoothing_dim, ends, opts.memory_budget_mb)
+        if opts.mode == "whole":
+            return WindowedSmoother(bank.smoothing_dim, lambda _: False, opts.memory_budget_mb)
+        reporters = [p for p in self.plugins if p.closes_windows]
+        if not reporters:
+            raise ConfigError(
+                "config key smoother.mode: online smoothing needs a plugin that reports"
+                " window ends (face ends), e.g. cpoem; none of the configured plugins does"
+            )
+
+        def due(t: float) -> bool:
+            return any([p.window_end_due(t) for p in reporters])  # ask every one: each counts
+
+        return WindowedSmoother(bank.smoothing_dim, due, opts.memory_budget_mb)
 
     def _smoothing_step(
         self,

@@ -240,10 +240,15 @@ class Plugin(ABC):
             " filter.architecture standalone needs one that has (e.g. uwb)"
         )
 
-    def window_ends(self) -> NDArray[np.float64] | None:
-        """Times at which online smoothing should close a window (e.g. face ends; empty when
-        the recording has none); ``None`` (the default): the plugin does not close windows."""
-        return None
+    closes_windows: ClassVar[bool] = False
+    """Whether the plugin tells online smoothing where to close its windows
+    (:meth:`window_end_due`, e.g. CPOEM at the face ends)."""
+
+    def window_end_due(self, t: float) -> bool:
+        """Whether online smoothing should close a window at ``t`` (called after each filter
+        step of a plugin with :attr:`closes_windows`; causal: from what the plugin has seen up
+        to ``t``, e.g. a face end just reached). Default: never."""
+        return False
 
     def receive_smoothed(
         self,

@@ -52,7 +52,7 @@ from __future__ import annotations
 import shutil
 import tempfile
 from array import array
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import numpy as np
@@ -248,15 +248,17 @@ class WindowedSmoother:
     ----------
     dim
         Dimension of the smoothed state.
-    window_ends
-        Sorted times at which a window closes (after the step at that time).
+    window_end_due
+        Called with each step's time (after the step is stored): whether a window closes there.
     memory_budget_mb
         Per-window in-memory budget before spilling to disk.
     """
 
-    def __init__(self, dim: int, window_ends: NDArray[np.float64], memory_budget_mb: float) -> None:
+    def __init__(
+        self, dim: int, window_end_due: Callable[[float], bool], memory_budget_mb: float
+    ) -> None:
         self.dim = dim
-        self.window_ends = np.asarray(window_ends, dtype=float)
+        self.window_end_due = window_end_due
         self.budget = memory_budget_mb
         self.store = StepStore(dim, memory_budget_mb)
         self._navs = RowBuffer((NAV_SIZE,))
@@ -265,7 +267,6 @@ class WindowedSmoother:
         self.covariance = RowBuffer((3, 3))
         self.peak_steps = 0
         self.spilled = False
-        self._next_end = 0
 
     def step(
         self,
@@ -281,11 +282,7 @@ class WindowedSmoother:
         self.store.append(t, phi, prior, posterior, feedback, nav_after is not None)
         if nav_after is not None:
             self._navs.append(nav_after)
-        due = False
-        while self._next_end < self.window_ends.size and self.window_ends[self._next_end] <= t:
-            self._next_end += 1
-            due = True
-        return self.close_window() if due and self.store.n > 1 else None
+        return self.close_window() if self.window_end_due(t) and self.store.n > 1 else None
 
     def close_window(self) -> Rows:
         """Smooth the stored window, keep its output rows, start an empty window; return the

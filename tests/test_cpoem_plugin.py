@@ -1,9 +1,12 @@
-"""CPOEM: H against numerical differentiation, the cycle detector, the point store, and the filter
-on ``seed000-carrier`` (accuracy against odometer + motion constraint alone, consistency)."""
+"""CPOEM: the stations and their visits on a synthetic face (any traversal pattern, a
+recording that stops anywhere), H against numerical differentiation, the stored points' noise,
+the self-suspension, and the filter on ``seed000-carrier`` (accuracy against odometer + motion
+constraint alone, consistency)."""
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import copy
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -12,7 +15,7 @@ import pytest
 from fusion.attitude import dcm_from_euler
 from fusion.config import FusionConfig, load_config, parse_config
 from fusion.engine import Engine, RunResult
-from fusion.metrics import compute_metrics, interpolate_truth
+from fusion.metrics import interpolate_truth
 from fusion.plugin import Measurement, MeasurementContext
 from fusion.recording import (
     OdometerData,
@@ -23,7 +26,7 @@ from fusion.recording import (
     read_recording,
 )
 from fusion.sim.simulate import simulate
-from plugins.cpoem import Cpoem, CpoemOptions, detect_passes, odometer_mileage
+from plugins.cpoem import Cpoem, CpoemOptions
 from tests.plugin_support import (
     group_rms,
     layout_with,
@@ -36,22 +39,22 @@ from tests.plugin_support import (
 
 CONFIGS = Path(__file__).resolve().parents[1] / "configs"
 
-# A 10 m face at azimuth 30°: pass 1 out, terminal oblique cut (4 m in, back), pass 2 back.
+# A 10 m face at azimuth 30°: pass 1 out, terminal oblique cut (6 m back in, push, out again),
+# pass 2 back to the start.
 AZIMUTH = np.deg2rad(30.0)
 ATTITUDE = dcm_from_euler(0.02, 0.0, AZIMUTH)  # rolled across the face, level along it
 ALONG = ATTITUDE[:, 1]
 ADVANCE_M = 1.0
-PROFILE = [(2.0, 0.0), (20.0, 0.5), (2.0, 0.0), (8.0, -0.5), (4.0, 0.0), (8.0, 0.5), (2.0, 0.0)]
-PROFILE += [(20.0, -0.5), (2.0, 0.0)]
-PUSH_T = 34.0
+PROFILE = [(2.0, 0.0), (20.0, 0.5), (2.0, 0.0), (12.0, -0.5), (4.0, 0.0), (12.0, 0.5)]
+PROFILE += [(2.0, 0.0), (20.0, -0.5), (2.0, 0.0)]
+PUSH_T = 38.0
+TOLERANCE = {"end_tolerance_m": 2.0}
+"""A stop within 2 m of a face end visits it (the default 5 m is half this short face)."""
 
 
-def _meta(start_enu: tuple[float, float, float] = (0.0, 0.0, 0.0)) -> RecordingMeta:
+def _meta() -> RecordingMeta:
     return recording_meta(
-        initial={
-            "position_enu_m": list(start_enu),
-            "attitude_deg": {"roll": 0, "pitch": 0, "yaw": 30},
-        },
+        initial={"attitude_deg": {"roll": 0, "pitch": 0, "yaw": 30}},
         odometer={"rate_hz": 10.0},
         face={
             "length_m": 10.0,
@@ -68,172 +71,183 @@ def _odometer(profile: list[tuple[float, float]]) -> OdometerData:
 
 
 def _recording(
-    profile: list[tuple[float, float]] = PROFILE,
-    support: bool = True,
-    start_enu: tuple[float, float, float] = (0.0, 0.0, 0.0),
+    profile: list[tuple[float, float]] = PROFILE, advances: tuple[float, ...] | None = (ADVANCE_M,)
 ) -> Recording:
+    """The synthetic face; ``advances`` logged at PUSH_T (None: no support.csv)."""
     odo = _odometer(profile)
+    support = None
+    if advances is not None:
+        support = SupportData(t=np.full(len(advances), PUSH_T), advance=np.array(advances))
     return Recording(
         path=None,
-        meta=_meta(start_enu),
+        meta=_meta(),
         imu=still_imu(odo.t[-1] + 1e-9),
         odometer=odo,
-        support=SupportData(t=np.array([PUSH_T]), advance=np.array([ADVANCE_M]))
-        if support
-        else None,
+        support=support,
     )
 
 
-def _true_position(rec: Recording, t: float) -> np.ndarray:
-    """Truth of the synthetic face: mileage along the face line, shifted by the advance after
-    the push along the body x axis (level along the face, rolled: square to the face line)."""
+def _true_position(rec: Recording, t: float, moved: float = ADVANCE_M) -> np.ndarray:
+    """Truth of the synthetic face: mileage along the face line, shifted by ``moved`` along the
+    body x axis (level along the face, rolled: square to the face line) after the push."""
     assert rec.odometer is not None
-    mileage = np.interp(
-        t,
-        np.concatenate([[0.0], rec.odometer.t]),
-        np.concatenate([[0.0], odometer_mileage(rec.odometer)]),
-    )
-    return mileage * ALONG + (ADVANCE_M * ATTITUDE[:, 0] if t > PUSH_T else 0.0)
+    dt = 0.1
+    mileage = np.concatenate([[0.0], np.cumsum(rec.odometer.speed * dt)])
+    along = np.interp(t, np.concatenate([[0.0], rec.odometer.t]), mileage)
+    return along * ALONG + (moved * ATTITUDE[:, 0] if t > PUSH_T else 0.0)
 
 
-def _true_context(plugin: Cpoem, rec: Recording, t: float) -> MeasurementContext:
+def _context(
+    plugin: Cpoem, rec: Recording, t: float, moved: float = ADVANCE_M
+) -> MeasurementContext:
+    """The truth as the SINS state, with the covariance of a filter that knows its position
+    and attitude to a centimetre and a milliradian."""
     layout = layout_with(plugin.state_blocks())
     return perturbed_context(
-        layout, np.zeros(layout.dim), t=t, position_enu=_true_position(rec, t), c_b_n=ATTITUDE
+        layout,
+        np.zeros(layout.dim),
+        t=t,
+        position_enu=_true_position(rec, t, moved),
+        c_b_n=ATTITUDE,
+        covariance=1e-6 * np.eye(layout.dim) + np.diag([0.0] * 6 + [1e-4] * 3 + [0.0] * 6),
     )
 
 
-def _walk_to(plugin: Cpoem, rec: Recording, stop: int) -> None:
-    """Call ``measure`` for the visits before ``stop`` with the true SINS state, and ``store``
-    after it where the visit stores the posterior (as the engine does)."""
-    stores = plugin.store_epochs()
+@dataclass(frozen=True)
+class Check:
+    """One check of the walk: time, the station visited (None: no visit), the measurement."""
+
+    t: float
+    station: int | None
+    measurement: Measurement | None
+
+
+def _walk(
+    plugin: Cpoem, rec: Recording, moved: float = ADVANCE_M, stop: int | None = None
+) -> list[Check]:
+    """Every check up to ``stop`` with the true SINS state, measured then stored (as the engine
+    calls them)."""
+    out = []
     for k, t in enumerate(plugin.epochs()[:stop]):
-        plugin.measure(k, _true_context(plugin, rec, float(t)))
-        for index in np.flatnonzero(stores == t):
-            plugin.store(int(index), _true_context(plugin, rec, float(t)))
+        ctx = _context(plugin, rec, float(t), moved)
+        m = plugin.measure(k, ctx)
+        visit = plugin._visit
+        plugin.store(k, ctx)
+        out.append(Check(float(t), None if visit is None else visit.station, m))
+    return out
 
 
-def test_synthetic_face_passes_points_and_visits() -> None:
-    """Two passes, points every 2 m, each point visited once per pass, the face ends at the
-    pass boundaries, nothing measured in the first cycle."""
+def test_stations_bounded_by_the_face_and_visits_of_a_cycle() -> None:
+    """Stations every 2 m between the surveyed ends, three stored-error variables each,
+    whatever the travel; pass 1 stores its crossings; the arrival at the far end is measured
+    against the survey; the crossings back in along the bend wait for the push; after it, each
+    crossing and end stop is measured against its previous visit plus the advance (z = 0 at
+    the truth); every face-end stop closes a smoothing window."""
     rec = _recording()
-    plugin = Cpoem("cpoem", CpoemOptions(), rec)
-    assert [(p.number, p.direction, p.complete) for p in plugin.passes] == [
-        (1, 1, True),
-        (2, -1, True),
-    ]
-    np.testing.assert_allclose([plugin.passes[0].t_start, plugin.passes[0].t_end], [2.0, 22.0])
-    np.testing.assert_allclose([plugin.passes[1].t_start, plugin.passes[1].t_end], [46.0, 66.0])
-    np.testing.assert_allclose(plugin.point_mileage, [0, 2, 4, 6, 8, 10])
-    for number in (1, 2):
-        visited = sorted(v.point for v in plugin.visits if v.pass_number == number)
-        assert visited == [0, 1, 2, 3, 4, 5]
-    crossing = next(v.t for v in plugin.visits if v.pass_number == 1 and v.point == 3)
-    assert crossing == pytest.approx(2.0 + 6.0 / 0.5)
-    times = plugin.epochs()
-    assert times.size == len(plugin.visits) and np.all(np.diff(times) >= 0)
-    stores = plugin.store_epochs()  # the interior points' visits: 4 per pass
-    np.testing.assert_array_equal(stores, [v.t for v in plugin.visits if v.point not in (0, 5)])
+    plugin = Cpoem("cpoem", CpoemOptions(**TOLERANCE), rec)
+    np.testing.assert_allclose(plugin.stations, [0, 2, 4, 6, 8, 10])
     assert plugin.stored_errors() == 3 * 6
-    first_cycle = [k for k in range(times.size) if plugin.visits[k].pass_number == 1]
-    for k in first_cycle:
-        assert plugin.measure(k, _true_context(plugin, rec, float(times[k]))) is None
-        for index in np.flatnonzero(stores == times[k]):
-            stored = plugin.store(int(index), _true_context(plugin, rec, float(times[k])))
-            point = plugin.visits[k].point
-            np.testing.assert_array_equal(stored.columns, [3 * point, 3 * point + 1, 3 * point + 2])
-            np.testing.assert_allclose(stored.h[:, 6:9], np.eye(3), atol=1e-5)  # δp, ENU ≈ local
-    stored_t, _, _ = plugin.stored_points()
-    assert not np.any(np.isnan(stored_t))
+    assert plugin.epochs().size == plugin.store_epochs().size == round(76.0 * 5)
+    checks = _walk(plugin, rec)
+    visits = [
+        (round(c.t, 1), c.station, c.measurement is not None)
+        for c in checks
+        if c.station is not None
+    ]
+    stations = [station for _, station, _ in visits]
+    assert stations == [1, 2, 3, 4, 5, 3, 4, 5, 4, 3, 2, 1, 0]
+    measured = [station for _, station, m in visits if m]
+    assert measured == [5, 3, 4, 5, 4, 3, 2, 1, 0]  # not pass 1, not the bend before the push
+    for c in checks:
+        if c.measurement is not None:
+            assert c.measurement.z.shape == (2,)
+            np.testing.assert_allclose(c.measurement.z, 0.0, atol=1e-5)
+    ends = [t for t, station, _ in visits if station in (0, 5)]
+    assert [plugin.window_end_due(t) for t in ends] == [True] * len(ends)
+    assert not plugin.window_end_due(ends[-1] + 1.0)
 
 
 @pytest.mark.parametrize("direction", ["face", "attitude"])
-@pytest.mark.parametrize("point", [2, 5])
-def test_h_matches_numerical_differentiation(direction: str, point: int) -> None:
-    """z = 0 at the truth (interior point from the first cycle's estimate, face end from the
-    survey, both plus the advance) and z(δx) − z(0) = H δx to first order."""
+@pytest.mark.parametrize("station", [2, 0])
+def test_h_matches_numerical_differentiation(direction: str, station: int) -> None:
+    """z(δx) − z(0) = H δx to first order at a pass-2 station and at the face end it returns
+    to, through a perturbed SINS state."""
     rec = _recording()
-    plugin = Cpoem("cpoem", CpoemOptions.model_validate({"advance_direction": direction}), rec)
-    index = next(k for k, v in enumerate(plugin.visits) if v.pass_number == 2 and v.point == point)
-    _walk_to(plugin, rec, index)
+    options = CpoemOptions(advance_direction=direction, **TOLERANCE)
+    plugin = Cpoem("cpoem", options, rec)
+    checks = _walk(copy.deepcopy(plugin), rec)
+    index = max(k for k, c in enumerate(checks) if c.station == station)
+    _walk(plugin, rec, stop=index)
     layout = layout_with(plugin.state_blocks())
-    t = float(plugin.epochs()[index])
-    p_true = _true_position(rec, t)
+    t = checks[index].t
+    # 3 cm past the station along the travel, so that a perturbed position crosses it too
+    p_true = _true_position(rec, t) - 0.03 * ALONG
     c_b_n = dcm_from_euler(0.02, 0.015, AZIMUTH + 0.01)  # a pitch and a yaw off the face normal
-    stored = plugin.stored_points()
 
     def measure(dx: np.ndarray) -> Measurement:
-        # face ends update their chain when measured: measure from the same stored state
-        plugin._stored_t[:], plugin._stored_p[:], plugin._stored_cov[:] = (a.copy() for a in stored)
-        m = plugin.measure(
+        probe = copy.deepcopy(plugin)
+        m = probe.measure(
             index, perturbed_context(layout, dx, t=t, position_enu=p_true, c_b_n=c_b_n)
         )
         assert m is not None
         return m
 
-    def residual(dx: np.ndarray) -> np.ndarray:
-        return measure(dx).z
-
-    at_truth = plugin.measure(
-        index,
-        perturbed_context(layout, np.zeros(layout.dim), t=t, position_enu=p_true, c_b_n=ATTITUDE),
-    )
-    assert at_truth is not None
-    # the truth's advance is in the origin's ENU axes, 1.6e-7 rad/m away from the local ones
-    np.testing.assert_allclose(at_truth.z, 0.0, atol=1e-6)
     steps = np.array([1e-3] * 3 + [1e-5] * 3 + [1e-2] * 3 + [0.0] * 6)
-    numeric = numerical_jacobian(residual, layout.dim, steps)
+    numeric = numerical_jacobian(lambda dx: measure(dx).z, layout.dim, steps)
     m = measure(np.zeros(layout.dim))
     # δp is applied along the origin's ENU axes, 1.6e-6 rad off the local ones at 10 m
     np.testing.assert_allclose(m.H, numeric, atol=1e-5)
     assert np.all(np.linalg.eigvalsh(m.R) > 0)
     if direction == "face":  # the heading error does not turn the advance square to the face
-        np.testing.assert_allclose(m.H[:2, 5], 0.0, atol=1e-12)
-    else:
-        assert abs(m.H[0, 5]) > 0.5 * ADVANCE_M
+        np.testing.assert_allclose(m.H[0, 5], 0.0, atol=1e-12)
+    else:  # eq. 6: across row −d nᵀ (u×) = d (u × n)ᵀ, u the body x axis
+        u = c_b_n[:, 0]
+        np.testing.assert_allclose(
+            m.H[0, 3:6], ADVANCE_M * np.cross(u, plugin.face_normal_enu), atol=1e-6
+        )
 
 
-def test_face_end_chain_and_interior_noise() -> None:
-    """A face end is predicted from the survey plus the advance and its covariance grows by the
-    advance noise. An interior point's noise carries its stored error (its three stored-error
-    variables, mixed by −R_local) with its stored covariance counted once; refreshed by the
-    smoother, whose smoothed error's correlation is unknown, it counts n times (k = n) as
-    independent noise."""
+def test_stored_noise_face_end_chain_and_refresh() -> None:
+    """A face end's chain is the survey plus the advance, its covariance growing by the advance
+    and line noise. A station's noise carries its stored error (its three stored-error
+    variables, mixed by −T R_local, T across and up) with its stored covariance counted once;
+    refreshed by the smoother, whose smoothed error's correlation is unknown, it counts n times
+    (k = n) as independent noise."""
     rec = _recording()
-    opts = CpoemOptions()
+    opts = CpoemOptions(**TOLERANCE)
     plugin = Cpoem("cpoem", opts, rec)
-    far_end = next(k for k, v in enumerate(plugin.visits) if v.pass_number == 2 and v.point == 5)
-    _walk_to(plugin, rec, far_end + 1)
+    checks = _walk(copy.deepcopy(plugin), rec)
+    second_far_end = [k for k, c in enumerate(checks) if c.station == 5][-1]
+    _walk(plugin, rec, stop=second_far_end + 1)
     _, p, cov = plugin.stored_points()
     np.testing.assert_allclose(p[5], 10.0 * ALONG + ADVANCE_M * ATTITUDE[:, 0], atol=1e-9)
-    expected = opts.survey_sigma_m**2 + opts.advance_sigma_m**2 + opts.geometry_sigma_m**2
-    assert np.trace(cov[5]) == pytest.approx(3 * expected - 2 * opts.advance_sigma_m**2)
-    interior = far_end + 1  # the next visit: point 4, stored in the first cycle
-    assert plugin.visits[interior].point == 4
-    t = float(plugin.epochs()[interior])
-    m = plugin.measure(interior, _true_context(plugin, rec, t))
+    expected = opts.survey_sigma_m**2 + 2 * opts.geometry_sigma_m**2
+    assert np.trace(cov[5]) == pytest.approx(3 * expected + opts.advance_sigma_m**2)
+    station = next(k for k, c in enumerate(checks) if k > second_far_end and c.station == 4)
+    _walk(plugin, rec, stop=station)  # measure is reached below
+    plugin2 = copy.deepcopy(plugin)
+    ctx = _context(plugin, rec, checks[station].t)
+    m = plugin.measure(station, ctx)
     assert m is not None and m.correlated is not None
     np.testing.assert_array_equal(m.correlated.columns, [12, 13, 14])
-    np.testing.assert_allclose(m.correlated.mixing, -np.eye(3), atol=1e-5)
-    others = m.R - cov[4]
-    assert np.all(np.linalg.eigvalsh(others) > 0)  # advance, geometry, along-track noise
-    assert np.trace(others) < np.trace(cov[4]) + 3 * opts.along_sigma_m**2
-    stored_t = plugin.stored_points()[0][4]
-    times = np.array([stored_t - 1.0, stored_t + 1.0])
-    assert plugin.refresh_points(times, np.stack([p[4], p[4]]), np.stack([cov[4], cov[4]])) == 1
-    refreshed = plugin.measure(interior, _true_context(plugin, rec, t))
+    rows = np.vstack([plugin.face_normal_enu, [0.0, 0.0, 1.0]])
+    np.testing.assert_allclose(m.correlated.mixing, -rows, atol=1e-5)
+    stored_cov = rows @ cov[4] @ rows.T
+    assert np.all(np.linalg.eigvalsh(m.R - stored_cov) > 0)  # advance, line deviation
+    t_stored = plugin2.stored_points()[0][4]
+    times = np.array([t_stored - 1.0, t_stored + 1.0])
+    assert plugin2.refresh_points(times, np.stack([p[4], p[4]]), np.stack([cov[4], cov[4]])) == 1
+    refreshed = plugin2.measure(station, ctx)
     assert refreshed is not None and refreshed.correlated is None
-    n_interior = plugin.point_mileage.size - 2
-    np.testing.assert_allclose(refreshed.R - m.R, (n_interior - 1) * cov[4], atol=1e-15)
+    np.testing.assert_allclose(refreshed.R - m.R, 3 * stored_cov, atol=1e-6)  # k = n = 4
 
 
-def test_refresh_points_replaces_interior_points_of_the_pass() -> None:
+def test_refresh_points_replaces_the_points_visited_in_the_window() -> None:
     rec = _recording()
-    plugin = Cpoem("cpoem", CpoemOptions(), rec)
-    _walk_to(plugin, rec, plugin.epochs().size)
-    _, before, _ = plugin.stored_points()
-    pass2 = plugin.passes[1]
-    times = np.linspace(pass2.t_start, pass2.t_end, 50)
+    plugin = Cpoem("cpoem", CpoemOptions(**TOLERANCE), rec)
+    _walk(plugin, rec)
+    stored_t, before, _ = plugin.stored_points()
+    times = np.linspace(stored_t[1:5].min() - 1.0, stored_t[1:5].max() + 1.0, 50)
     offset = np.array([0.1, -0.2, 0.05])
     smoothed = np.array([_true_position(rec, t) + offset for t in times])
     covariances = np.broadcast_to(0.01**2 * np.eye(3), (times.size, 3, 3))
@@ -243,8 +257,6 @@ def test_refresh_points_replaces_interior_points_of_the_pass() -> None:
     np.testing.assert_allclose(cov[1:5], np.broadcast_to(0.01**2 * np.eye(3), (4, 3, 3)))
     np.testing.assert_array_equal(after[[0, 5]], before[[0, 5]])  # surveyed ends untouched
     assert plugin.refresh_points(times - 100.0, smoothed, covariances) == 0
-    # the engine's online smoother: windows close at the face ends after the first pass
-    np.testing.assert_allclose(plugin.window_ends(), [pass2.t_end])
     plugin.receive_smoothed(times, smoothed - offset, covariances)
     np.testing.assert_allclose(plugin.stored_points()[1][1:5], before[1:5], atol=1e-9)
     with pytest.raises(ValueError, match="strictly increasing"):
@@ -253,35 +265,50 @@ def test_refresh_points_replaces_interior_points_of_the_pass() -> None:
         plugin.refresh_points(times, smoothed[:, :2], covariances)
 
 
-def test_detector_ignores_stops_back_up_and_oblique_back_and_forth() -> None:
-    """Stops and a 1 m back-up mid-pass keep the pass; a terminal oblique cut with several
-    turns does not start one; the next pass starts at the turn at the face end; the data end
-    inside an incomplete third pass."""
-    profile = [(2.0, 0.0), (6.0, 0.5), (5.0, 0.0), (2.0, -0.5), (2.0, 0.5), (14.0, 0.5)]
-    profile += [(3.0, 0.0), (12.0, -0.5), (2.0, 0.5), (4.0, -0.5), (14.0, 0.5), (3.0, 0.0)]
-    profile += [(20.0, -0.5), (3.0, 0.0), (8.0, 0.5), (8.0, -0.5), (2.0, 0.0)]
-    profile += [(10.0, 0.5), (1.0, 0.0)]
-    odo = _odometer(profile)
-    passes = detect_passes(odo.t, odometer_mileage(odo), 10.0, 0.8, 0.3, 3.0)
-    assert [(p.number, p.direction, p.complete) for p in passes] == [
-        (1, 1, True),
-        (2, -1, True),
-        (3, 1, False),
-    ]
-    bounds = [(p.t_start, p.t_end) for p in passes]
-    np.testing.assert_allclose(bounds, [(2.0, 31.0), (69.0, 89.0), (110.0, 121.0)], atol=1e-9)
-    np.testing.assert_allclose([p.end_mileage for p in passes[:2]], [10.0, 0.0], atol=1e-9)
+def test_any_traversal_pattern_and_a_recording_that_stops_mid_pass() -> None:
+    """Stops and a 1 m back-up mid-face (a re-cut), a cleaning run back over the same line
+    before the push, and data ending in the middle of a pass: every measured visit is the same
+    place of the same line (z = 0 at the truth), and the end of the data is no face end."""
+    profile = [(2.0, 0.0), (6.0, 0.5), (5.0, 0.0), (2.0, -0.5), (2.0, 0.5), (12.0, 0.5)]
+    profile += [(3.0, 0.0), (18.0, -0.5), (2.0, 0.0), (2.0, 0.0), (20.0, 0.5), (2.0, 0.0)]
+    profile += [(11.0, -0.5)]  # data end 5.5 m into the last pass
+    rec = _recording(profile)
+    plugin = Cpoem("cpoem", CpoemOptions(**TOLERANCE), rec)
+    checks = _walk(plugin, rec)
+    measured = [c for c in checks if c.measurement is not None]
+    assert len(measured) >= 8
+    for c in measured:
+        np.testing.assert_allclose(c.measurement.z, 0.0, atol=1e-5)  # type: ignore[union-attr]
+    assert checks[-1].station is None or checks[-1].station not in (0, 5)
+
+
+def test_waits_without_support_and_suspends_itself_when_the_model_does_not_fit() -> None:
+    """Without support.csv no push is known: nothing is measured. When the line moves by 0.5 m
+    at a push logged as 0 (a push the rams did not log), the learned line deviation soon
+    exceeds max_geometry_sigma_m and CPOEM stops measuring instead of pulling the filter."""
+    rec = _recording(advances=None)
+    assert all(
+        c.measurement is None for c in _walk(Cpoem("cpoem", CpoemOptions(**TOLERANCE), rec), rec)
+    )
+    unlogged = _recording(advances=(0.0,))
+    plugin = Cpoem(
+        "cpoem", CpoemOptions(adaptive_window=2, max_geometry_sigma_m=0.2, **TOLERANCE), unlogged
+    )
+    checks = _walk(plugin, unlogged, moved=0.5)
+    after_push = [c for c in checks if c.station not in (None, 0, 5) and c.t > PUSH_T]
+    assert any(c.measurement is not None for c in after_push)
+    assert plugin.suspended and after_push[-1].measurement is None
 
 
 def test_bad_input_is_named() -> None:
-    with pytest.raises(ValueError, match=r"support\.csv"):
-        Cpoem("cpoem", CpoemOptions(), _recording(support=False))
-    plugin = Cpoem("cpoem", CpoemOptions(advance_source="nominal"), _recording(support=False))
-    assert plugin._advance(20.0, 50.0) == (ADVANCE_M, 1)
-    with pytest.raises(ValueError, match=r"starts 5\.00 m from the nearest face end"):
-        Cpoem("cpoem", CpoemOptions(), _recording(start_enu=(5.0, 0.0, 0.0)))
-    with pytest.raises(ValueError, match="end_clearance_m"):
-        CpoemOptions(end_clearance_m=0.1, reversal_hysteresis_m=0.3)
+    rec = _recording()
+    with pytest.raises(ValueError, match=r"odometer\.csv"):
+        Cpoem("cpoem", CpoemOptions(**TOLERANCE), replace(rec, odometer=None))
+    no_face = rec.meta.model_copy(update={"face": None})
+    with pytest.raises(ValueError, match=r"face\.ends_enu_m"):
+        Cpoem("cpoem", CpoemOptions(**TOLERANCE), replace(rec, meta=no_face))
+    with pytest.raises(ValueError, match="interval_m"):
+        Cpoem("cpoem", CpoemOptions(interval_m=6.0, **TOLERANCE), rec)
 
 
 # --------------------------------------------------------------------------------------------
@@ -307,15 +334,12 @@ PRESET_SEEDS = range(3)
 class CarrierRun:
     """One recording fused with and without CPOEM."""
 
-    sep_baseline: np.ndarray  # (4,) SEP of cycles 1–4, configs/sins_od_ckf.yaml
-    sep_cpoem: np.ndarray  # (4,) configs/sins_od_cpoem.yaml
+    across_baseline: np.ndarray  # (4,) RMS error across the face, cycles 1–4, sins_od_ckf.yaml
+    across_cpoem: np.ndarray  # (4,) the same with configs/sins_od_cpoem.yaml
     squared_normalized: np.ndarray  # (N, 3) (err/σ)² of the CPOEM run
     nis_dof: tuple[float, int]  # Σ NIS and Σ m of all CPOEM updates
     matched_ratios: np.ndarray  # (M, 9) err/σ of velocity, attitude, position (1 Hz), and
     matched_nis_dof: tuple[float, int]  # the CPOEM NIS, with the noise the simulator used
-    agreement: float  # detected cycle label = truth cycle, fraction of truth samples
-    boundary_error_s: float  # largest |detected − true| pass boundary
-    passes: int
 
 
 def _fuse(rec: Recording, config: str | FusionConfig) -> tuple[Engine, RunResult]:
@@ -350,9 +374,17 @@ def _nis_dof(result: RunResult) -> tuple[float, int]:
     return float(log.nis.sum()), int(log.dof.sum())
 
 
+def _across_per_cycle(result: RunResult, rec: Recording, plugin: Cpoem) -> np.ndarray:
+    """RMS position error across the face (the surveyed face line's normal) in cycles 1–4."""
+    assert rec.truth is not None
+    inside, position, *_ = interpolate_truth(rec.truth, result.solution.t)
+    across = (result.solution.position[inside] - position) @ plugin.face_normal_enu
+    cycle = np.interp(result.solution.t[inside], rec.truth.t, rec.truth.cycle).round()
+    return np.array([np.sqrt(np.mean(across[cycle == c] ** 2)) for c in (1, 2, 3, 4)])
+
+
 def _carrier_run(rec: Recording) -> CarrierRun:
     assert rec.truth is not None
-    truth = rec.truth
     _, base = _fuse(rec, "sins_od_ckf.yaml")
     engine, fused = _fuse(rec, "sins_od_cpoem.yaml")
     matched, matched_ratios = normalized_errors(
@@ -360,32 +392,13 @@ def _carrier_run(rec: Recording) -> CarrierRun:
     )
     plugin = engine.plugins[1]
     assert isinstance(plugin, Cpoem)
-    label = np.zeros(truth.t.size, dtype=int)
-    for p in plugin.passes:
-        label[(truth.t >= p.t_start) & (truth.t <= p.t_end)] = p.number
-    change = np.flatnonzero(np.diff(truth.cycle) != 0)
-    true_bounds = np.sort(np.concatenate([truth.t[change], truth.t[change + 1]]))[::2]
-    detected = np.sort([t for p in plugin.passes for t in (p.t_start, p.t_end)])
-    boundary = (
-        float(np.max(np.abs(detected - true_bounds)))
-        if detected.size == true_bounds.size
-        else np.inf
-    )
-
-    def sep(result: RunResult) -> np.ndarray:
-        per_cycle = compute_metrics(result.solution, truth)["sep_per_cycle"]
-        return np.array([per_cycle[c] for c in (1, 2, 3, 4)], dtype=float)
-
     return CarrierRun(
-        sep_baseline=sep(base),
-        sep_cpoem=sep(fused),
-        squared_normalized=_squared_normalized(fused, truth),
+        across_baseline=_across_per_cycle(base, rec, plugin),
+        across_cpoem=_across_per_cycle(fused, rec, plugin),
+        squared_normalized=_squared_normalized(fused, rec.truth),
         nis_dof=_nis_dof(fused),
         matched_ratios=matched_ratios,
         matched_nis_dof=_nis_dof(matched),
-        agreement=float(np.mean(label == truth.cycle)),
-        boundary_error_s=boundary,
-        passes=len(plugin.passes),
     )
 
 
@@ -409,32 +422,22 @@ def preset_runs(tmp_path_factory: pytest.TempPathFactory) -> list[CarrierRun]:
 
 
 @pytest.mark.slow
-def test_detector_matches_truth_cycles(
-    mems_runs: list[CarrierRun], preset_runs: list[CarrierRun]
-) -> None:
-    """The four cutting passes found from the odometer alone, boundaries within the speed
-    ramps (a ramp's first centimetre takes 1–2 s), ≥ 98.5 % of the samples labelled alike."""
-    for run in [*mems_runs, *preset_runs]:
-        assert run.passes == 4
-        assert run.boundary_error_s < 3.0
-        assert run.agreement >= 0.985
-
-
-@pytest.mark.slow
 @pytest.mark.parametrize("grade", ["seed002-mems", "mti-g-700"])
-def test_cpoem_reduces_cycle_2_to_4_error(
+def test_cpoem_reduces_the_error_across_the_face(
     grade: str, mems_runs: list[CarrierRun], preset_runs: list[CarrierRun]
 ) -> None:
-    """CPOEM against odometer + motion constraint alone (configs/sins_od_ckf.yaml), SEP
-    averaged over the seeds: cycle 1 (no CPOEM measurement) unchanged; cycles 2–4 together at
-    most half. With the MEMS grade (20 short runs) every cycle is at most half; with the preset's
+    """CPOEM against odometer + motion constraint alone (configs/sins_od_ckf.yaml), RMS error
+    across the face averaged over the seeds: cycles 2–4, measured against earlier visits, at
+    most half; with the MEMS grade (20 short runs) every one of them; with the preset's
     MTi-G-700 (3 full runs), whose 0.2 °/s turn-on gyro bias turns the heading by tens of
-    degrees in the first pass, the first correction (cycle 2) is only partial, so every cycle
-    must merely be lower."""
+    degrees in the first pass, the first correction (cycle 2) is only partial, so each of
+    them must merely be lower. Along the face CPOEM measures nothing (plugins/cpoem.py)."""
     runs, per_cycle = (mems_runs, 0.5) if grade == "seed002-mems" else (preset_runs, 1.0)
-    base = np.mean([r.sep_baseline for r in runs], axis=0)
-    fused = np.mean([r.sep_cpoem for r in runs], axis=0)
-    np.testing.assert_allclose(fused[0], base[0], rtol=0.02)
+    base = np.mean([r.across_baseline for r in runs], axis=0)
+    fused = np.mean([r.across_cpoem for r in runs], axis=0)
+    print(
+        f"{grade}: across RMS per cycle, SINS/OD {np.round(base, 3)}, + CPOEM {np.round(fused, 3)}"
+    )
     assert np.all(fused[1:] < per_cycle * base[1:])
     assert fused[1:].mean() <= 0.5 * base[1:].mean()
 
