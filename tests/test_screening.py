@@ -7,13 +7,17 @@ from __future__ import annotations
 
 import json
 import logging
+import subprocess
+import sys
 from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 import pytest
 
-from fusion.config import ConfigError, ScreeningOptions, parse_config
+from fusion.config import ConfigError, FusionConfig, ScreeningOptions, load_config, parse_config
+from fusion.engine import Engine, RunResult
+from fusion.metrics import compute_metrics
 from fusion.recording import (
     ImuData,
     MagnetometerData,
@@ -297,7 +301,6 @@ def test_config_section_is_on_by_default_typed_and_described() -> None:
 def test_summary_and_metrics_report_the_rejections(tmp_path: Path) -> None:
     """``fusion run``'s summary has one line per stream with rejections, metrics.json a
     ``screening`` key, the result a typed field."""
-    from fusion.engine import Engine
     from fusion.outputs import summary, write_outputs
     from fusion.recording import read_recording
     from fusion.sim.simulate import simulate
@@ -323,3 +326,179 @@ def test_summary_and_metrics_report_the_rejections(tmp_path: Path) -> None:
     assert metrics["screening"]["streams"]["odometer"]["rejected"] == 1
     assert metrics["screening"]["streams"]["uwb"]["rejected"] == 0
     assert "solution.csv" in metrics
+
+
+# ------------------------------------------------------------------------------------------
+# One implausible sample per stream, the full AFKF on a simulated face
+# ------------------------------------------------------------------------------------------
+
+FIXES = "position={rate_hz: 1.0, sigma_m: [0.02, 0.02, 0.03], lever_arm_b_m: [0.3, 0.8, 0.4]}"
+CONFIGS = Path(__file__).resolve().parents[1] / "configs"
+
+
+@pytest.fixture(scope="module")
+def face(tmp_path_factory: pytest.TempPathFactory) -> Recording:
+    """60 s of ``longwall-200m`` (20 s static, then cutting) with 1-Hz position fixes; the
+    unscreened figures in the docstrings below are measured on it (clean: 0.014 m horizontal
+    RMS, 0.008 m with the fixes)."""
+    from fusion.recording import read_recording
+    from fusion.sim.simulate import simulate
+
+    out = tmp_path_factory.mktemp("face") / "rec"
+    return read_recording(
+        simulate(
+            "longwall-200m", out, seed=5, overrides=["duration_s=60", "static_start_s=20", FIXES]
+        )
+    )
+
+
+def _config(with_position: bool) -> FusionConfig:
+    data = load_config(CONFIGS / "full_afkf.yaml").model_dump()
+    if with_position:  # full_afkf has no position plugin
+        data["plugins"].append({"type": "position"})
+    return parse_config(data)
+
+
+@pytest.fixture(scope="module")
+def clean_rms() -> dict[bool, float]:
+    """Horizontal RMS of the clean face, with and without the position plugin (filled when
+    first needed)."""
+    return {}
+
+
+def _horizontal_rms(recording: Recording, with_position: bool = False) -> tuple[float, RunResult]:
+    result = Engine(_config(with_position), recording).run()
+    assert recording.truth is not None
+    return float(compute_metrics(result.solution, recording.truth)["horizontal_rms"]), result
+
+
+def _assert_harmless(
+    clean_rms: dict[bool, float],
+    face: Recording,
+    hostile: Recording,
+    stream: str,
+    rejected: int,
+    *,
+    with_position: bool = False,
+) -> None:
+    """The hostile copy's horizontal RMS within 10 % + 1 cm of the clean one's, and the samples
+    counted as rejected in their stream."""
+    if with_position not in clean_rms:
+        clean_rms[with_position] = _horizontal_rms(face, with_position)[0]
+    clean = clean_rms[with_position]
+    rms, result = _horizontal_rms(hostile, with_position)
+    assert abs(rms - clean) <= 0.1 * clean + 0.01, (stream, rms, clean)
+    assert result.screening.rejected_in(stream) == rejected
+    assert result.screening.rejected == rejected
+
+
+def _late(n: int) -> int:
+    """A row 80 % into a stream: the shearer is cutting."""
+    return n * 4 // 5
+
+
+def test_one_odometer_reading_at_1e4_mps(face: Recording, clean_rms: dict[bool, float]) -> None:
+    """Unscreened: 2.9 km horizontal RMS."""
+    assert face.odometer is not None
+    speed = face.odometer.speed.copy()
+    speed[_late(speed.size)] = 1e4
+    hostile = replace(face, odometer=OdometerData(face.odometer.t, speed))
+    _assert_harmless(clean_rms, face, hostile, "odometer", 1)
+
+
+@pytest.mark.parametrize("value", [1e308, 0.0])
+def test_one_magnetometer_reading_of_1e308_or_zero(
+    face: Recording, clean_rms: dict[bool, float], value: float
+) -> None:
+    assert face.magnetometer is not None
+    field = face.magnetometer.field.copy()
+    field[_late(field.shape[0])] = value
+    hostile = replace(face, magnetometer=MagnetometerData(face.magnetometer.t, field))
+    _assert_harmless(clean_rms, face, hostile, "magnetometer", 1)
+
+
+def test_one_uwb_range_of_1e6_m(face: Recording, clean_rms: dict[bool, float]) -> None:
+    uwb = face.uwb
+    assert uwb is not None
+    ranges = uwb.range.copy()
+    ranges[_late(ranges.size)] = 1e6
+    hostile = replace(face, uwb=UwbData(uwb.t, uwb.anchor_index, ranges, uwb.anchor_ids))
+    _assert_harmless(clean_rms, face, hostile, "uwb", 1)
+
+
+def test_one_position_fix_10_km_off(face: Recording, clean_rms: dict[bool, float]) -> None:
+    fixes = face.position
+    assert fixes is not None
+    enu = fixes.enu.copy()
+    enu[_late(enu.shape[0]), 0] += 1e4
+    hostile = replace(face, position=PositionData(fixes.t, enu, fixes.sigma))
+    _assert_harmless(clean_rms, face, hostile, "position", 1, with_position=True)
+
+
+def _imu_with(face: Recording, rows: slice, gyro: float | None, accel: float | None) -> Recording:
+    g, a = face.imu.gyro.copy(), face.imu.accel.copy()
+    if gyro is not None:
+        g[rows, 2] = gyro
+    if accel is not None:
+        a[rows, 0] = accel
+    return replace(face, imu=ImuData(face.imu.t, g, a))
+
+
+def test_one_gyro_sample_of_49_rad_s(face: Recording, clean_rms: dict[bool, float]) -> None:
+    """Unscreened: 0.067 m."""
+    k = _late(face.imu.t.size)
+    _assert_harmless(clean_rms, face, _imu_with(face, slice(k, k + 1), 49.0, None), "imu", 1)
+
+
+def test_one_accelerometer_sample_of_199_mps2(
+    face: Recording, clean_rms: dict[bool, float]
+) -> None:
+    """Unscreened: 5.3 m."""
+    k = _late(face.imu.t.size)
+    _assert_harmless(clean_rms, face, _imu_with(face, slice(k, k + 1), None, 199.0), "imu", 1)
+
+
+def test_one_second_of_imu_just_under_the_format_limits(
+    face: Recording, clean_rms: dict[bool, float]
+) -> None:
+    """100 samples at 49.9 rad/s and 199.9 m/s² are bridged as a 1-s gap; unscreened they
+    left 2.3 km."""
+    k = _late(face.imu.t.size)
+    _assert_harmless(clean_rms, face, _imu_with(face, slice(k, k + 100), 49.9, 199.9), "imu", 100)
+
+
+def test_an_odometer_reading_at_1e6_mps_leaves_the_peak_memory_as_it_was(tmp_path: Path) -> None:
+    """Unscreened, CPOEM stored a point every 2 m of the 100 km that one reading claims and
+    asked for a 168 GB covariance. Peak RSS of ``benchmarks.measure`` (a child process each,
+    its address space capped so that a regression fails instead of swapping)."""
+    from fusion.recording import read_recording, write_recording
+    from fusion.sim.simulate import simulate
+
+    clean = simulate("longwall-200m", tmp_path / "clean", seed=2, overrides=["duration_s=90"])
+    rec = read_recording(clean)
+    assert rec.odometer is not None
+    speed = rec.odometer.speed.copy()
+    speed[_late(speed.size)] = 1e6
+    write_recording(replace(rec, odometer=OdometerData(rec.odometer.t, speed)), tmp_path / "bad")
+    peaks = [
+        _peak_rss_mb(CONFIGS / "sins_od_cpoem.yaml", path) for path in (clean, tmp_path / "bad")
+    ]
+    assert peaks[1] <= 1.1 * peaks[0], peaks
+
+
+def _peak_rss_mb(config: Path, recording: Path) -> float:
+    def cap() -> None:
+        import resource
+
+        resource.setrlimit(resource.RLIMIT_AS, (8 << 30, 8 << 30))
+
+    out = subprocess.run(
+        [sys.executable, "-m", "benchmarks.measure", str(config), str(recording)],
+        capture_output=True,
+        text=True,
+        cwd=Path(__file__).resolve().parents[1],
+        preexec_fn=cap,
+        check=False,
+    )
+    assert out.returncode == 0, out.stderr[-2000:]
+    return float(json.loads(out.stdout.splitlines()[-1])["peak_rss_mb"])
