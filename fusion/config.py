@@ -2,7 +2,9 @@
 
 A configuration names the IMU tuning (defaults: the datasheet figures in the recording's
 ``imu.spec``), the filter options, the aiding plugins (one YAML block per sensor with its own
-options and rejection gate, robot_localization style) and the outputs. Every model forbids
+options and rejection gate, robot_localization style), the outputs, and the limits of the
+physical-plausibility screening of every stream (``screening:``, on by default; each default is
+justified in its field's description; :mod:`fusion.screening`). Every model forbids
 unknown keys, so a typo is an error that names its path (``filter.covariance_stp_s``) and the
 nearest valid key.
 
