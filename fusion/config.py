@@ -2,7 +2,9 @@
 
 A configuration names the IMU tuning (defaults: the datasheet figures in the recording's
 ``imu.spec``), the filter options, the aiding plugins (one YAML block per sensor with its own
-options and rejection gate, robot_localization style) and the outputs. Every model forbids
+options and rejection gate, robot_localization style), the outputs, and the limits of the
+physical-plausibility screening of every stream (``screening:``, on by default; each default is
+justified in its field's description; :mod:`fusion.screening`). Every model forbids
 unknown keys, so a typo is an error that names its path (``filter.covariance_stp_s``) and the
 nearest valid key.
 
@@ -202,6 +204,197 @@ class SmootherOptions(_Strict):
     )
 
 
+class ImuScreening(_Strict):
+    """Physical-plausibility limits of the IMU samples (:mod:`fusion.screening`).
+
+    The range limits are the sensor's measurement range, or lower: the platform's own largest
+    rates. The step limits bound the change between a sample and the last accepted one,
+    ``|x_k − x_ref| ≤ floor + rate·(t_k − t_ref)`` per axis.
+    """
+
+    max_angular_rate_rad_s: float = Field(
+        35.0,
+        gt=0,
+        description="largest |ω| per axis: the widest gyro range of MTi-class MEMS IMUs (MTi-1/"
+        "-600 series ±2000 °/s = 34.9 rad/s); the real data reach 12.7 (hand-held BROAD) and"
+        " 9.7 rad/s (foot-mounted PyShoe), a shearer < 1 rad/s. A platform may set it lower",
+    )
+    max_specific_force_mps2: float = Field(
+        160.0,
+        gt=0,
+        description="largest |f| per axis: the MTi-1/-600 series' ±16 g (156.9 m/s²); foot-"
+        "mounted PyShoe heel strikes reach 78 m/s², a shearer ≈ 11 m/s²",
+    )
+    max_angular_acceleration_rad_s2: float = Field(
+        1.0e4,
+        gt=0,
+        description="largest |Δω|/Δt between a sample and the last accepted one: ≈ 6× the"
+        " steepest step in the real data (a heel strike, 8.7 rad/s between two 200-Hz"
+        " samples = 1760 rad/s²); a shearer's vibration stays below 20 rad/s²",
+    )
+    max_jerk_mps3: float = Field(
+        1.0e5,
+        gt=0,
+        description="largest |Δf|/Δt between a sample and the last accepted one: ≈ 4.5× the"
+        " steepest step in the real data (a heel strike, 112 m/s² in 5 ms = 22000 m/s³); a"
+        " shearer's cutting vibration stays near 100 m/s³",
+    )
+    angular_rate_step_floor_rad_s: float = Field(
+        0.1,
+        ge=0,
+        description="step always allowed in ω (noise and vibration of one sample; 0.1 rad/s is"
+        " > 50σ of an MTi's 100-Hz gyro noise)",
+    )
+    specific_force_step_floor_mps2: float = Field(
+        1.0,
+        ge=0,
+        description="step always allowed in f (one sample's noise and vibration; a shearer's"
+        " cutting vibration is ≈ 0.3 m/s² per sample)",
+    )
+    recovery_samples: int = Field(
+        5,
+        ge=1,
+        description="after this many consecutive samples rejected by a step limit the next one"
+        " is accepted as the new reference, so a real step never locks the screen out",
+    )
+
+
+class OdometerScreening(_Strict):
+    """Physical-plausibility limits of the odometer speed (:mod:`fusion.screening`)."""
+
+    max_speed_mps: float = Field(
+        5.0,
+        gt=0,
+        description="largest |speed|: 18 km/h, above the fastest machine of the simulated"
+        " scenarios (70 m/min ≈ 1.2 m/s), 7× a shearer's haulage (≤ 30–40 m/min) and at the"
+        " usual underground limit of rubber-tyred vehicles; a faster vehicle sets its own",
+    )
+    max_acceleration_mps2: float = Field(
+        10.0,
+        gt=0,
+        description="largest |Δspeed|/Δt between a reading and the last accepted one: ≈ 1 g,"
+        " the tyre-friction limit of any wheeled vehicle (a shearer ramps at 0.02 m/s²)",
+    )
+    speed_step_floor_mps: float = Field(
+        0.05,
+        ge=0,
+        description="speed step always allowed (encoder quantization and noise at high rates;"
+        " the simulated encoders' noise is 2–10 mm/s)",
+    )
+    recovery_samples: int = Field(
+        3,
+        ge=1,
+        description="after this many consecutive readings rejected by the acceleration limit"
+        " the next one is accepted as the new reference",
+    )
+
+
+class MagnetometerScreening(_Strict):
+    """Plausible band of the magnetic field norm (:mod:`fusion.screening`). Interference inside
+    the band is the magnetometer plugin's indicator's business."""
+
+    min_field_uT: float = Field(
+        5.0,
+        ge=0,
+        description="smallest |B|: the earth's field is 22–67 µT everywhere; steel around a"
+        " sensor distorts it but does not cancel it (an all-zero reading is a dead sensor)",
+    )
+    max_field_uT: float = Field(
+        1000.0,
+        gt=0,
+        description="largest |B|: above the ±800 µT range of MTi-class magnetometers (the"
+        " BROAD trials with a magnet 1 cm from the sensor reach 86 µT)",
+    )
+
+    @model_validator(mode="after")
+    def _band(self) -> MagnetometerScreening:
+        if not self.min_field_uT < self.max_field_uT:
+            raise ValueError("min_field_uT must be smaller than max_field_uT")
+        return self
+
+
+class UwbScreening(_Strict):
+    """Plausible UWB ranges (:mod:`fusion.screening`); negative ones the reader refuses."""
+
+    max_range_m: float = Field(
+        300.0,
+        gt=0,
+        description="largest range: the reach of DW1000-class UWB at its lowest data rate in"
+        " line of sight (≈ 290 m); the simulated face's anchors answer within 40 m",
+    )
+
+
+class PositionScreening(_Strict):
+    """Plausibility of position fixes (:mod:`fusion.screening`)."""
+
+    min_sigma_m: float = Field(
+        1.0e-5,
+        gt=0,
+        description="smallest σ per axis: 10 µm, a laser tracker's accuracy (no instrument"
+        " positions better; a smaller σ would pin the filter to the fix)",
+    )
+    max_sigma_m: float = Field(
+        1000.0,
+        gt=0,
+        description="largest σ per axis: a fix this vague says nothing at a site's scale, and"
+        " huge values overflow the variance σ²",
+    )
+    max_distance_from_origin_m: float = Field(
+        1.0e5,
+        gt=0,
+        description="largest distance of a fix from the recording's origin: 100 km, beyond"
+        " any site that one local ENU frame describes",
+    )
+    max_speed_mps: float = Field(
+        100.0,
+        gt=0,
+        description="largest speed between a fix and the last accepted one: 360 km/h, above"
+        " any ground vehicle (the real car drive reaches 16 m/s)",
+    )
+    sigma_multiple: float = Field(
+        5.0,
+        gt=0,
+        description="the jump between two fixes may also exceed max_speed_mps·Δt by this many"
+        " σ of the two fixes combined",
+    )
+    recovery_samples: int = Field(
+        3,
+        ge=1,
+        description="after this many consecutive fixes rejected by the speed limit the next"
+        " one is accepted as the new reference",
+    )
+
+    @model_validator(mode="after")
+    def _band(self) -> PositionScreening:
+        if not self.min_sigma_m < self.max_sigma_m:
+            raise ValueError("min_sigma_m must be smaller than max_sigma_m")
+        return self
+
+
+class SupportScreening(_Strict):
+    """Plausible AFC pushes (:mod:`fusion.screening`)."""
+
+    max_advance_m: float = Field(
+        2.0,
+        gt=0,
+        description="largest push: a web is at most 1.2 m deep (the simulated carrier pushes"
+        " 1.19 m) and push rams have no longer stroke; a push is never negative",
+    )
+
+
+class ScreeningOptions(_Strict):
+    """Physical-plausibility screening of every stream before the plugins read it
+    (:mod:`fusion.screening`); the counts of rejected samples are reported per stream."""
+
+    enabled: bool = Field(True, description="screen the streams (false: use every reading)")
+    imu: ImuScreening = ImuScreening()
+    odometer: OdometerScreening = OdometerScreening()
+    magnetometer: MagnetometerScreening = MagnetometerScreening()
+    uwb: UwbScreening = UwbScreening()
+    position: PositionScreening = PositionScreening()
+    support: SupportScreening = SupportScreening()
+
+
 class OutputOptions(_Strict):
     """What ``fusion run`` writes."""
 
@@ -219,6 +412,7 @@ class FusionConfig(_Strict):
     plugins: list[PluginBlock] = []
     smoother: SmootherOptions = SmootherOptions()
     output: OutputOptions = OutputOptions()
+    screening: ScreeningOptions = ScreeningOptions()
     bridge_imu_gaps: bool = Field(False, description="accept IMU gaps > 5 samples, reported")
 
     @model_validator(mode="after")

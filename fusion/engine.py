@@ -10,6 +10,11 @@ navigation state therefore runs at the IMU rate and the covariance at the config
 bridged IMU gap adds its own process noise at the first step that reaches into it
 (:mod:`fusion.imu_gaps`).
 
+Before anything reads the recording, every stream is screened for physical plausibility
+(:mod:`fusion.screening`): the plugins, the SINS and the dead reckoning see only the accepted
+samples, rejected IMU runs are bridged as gaps, and the counts are in
+:attr:`RunResult.screening`.
+
 The error-state estimates live in a filter bank (:mod:`fusion.filter_bank`): one centralized
 Kalman filter, or the federated master of :mod:`fusion.federated` whose local filters are index
 sets of the same layout. Φ and Q_d are always computed once over the full layout.
@@ -20,7 +25,7 @@ from __future__ import annotations
 import logging
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 from numpy.typing import NDArray
@@ -49,6 +54,7 @@ from fusion.memory import release_freed_memory
 from fusion.plugin import MeasurementContext, Plugin, create_plugin
 from fusion.recording import ImuSpec, Recording
 from fusion.rows import RowBuffer
+from fusion.screening import ScreeningReport, screen_recording
 from fusion.smoother import WindowedSmoother
 from fusion.solution import Solution
 from fusion.strapdown import HGT, LAT, LON, NAV_SIZE, Q0, VEL, NavState, Strapdown
@@ -78,6 +84,8 @@ class RunResult:
     """The RTS-smoothed solution when smoothing is configured."""
     smoother_peak_steps: int = 0
     """Most filter steps held in memory at once for smoothing."""
+    screening: ScreeningReport = field(default_factory=lambda: ScreeningReport(enabled=False))
+    """Implausible samples rejected per stream and rule before the run (fusion.screening)."""
 
     @property
     def duration_s(self) -> float:
@@ -191,12 +199,13 @@ class Engine:
 
     def __init__(self, config: FusionConfig, recording: Recording) -> None:
         self.config = config
-        bridged, self.gap_bridges = bridge_imu_gaps(recording.imu, recording.imu_gaps)
-        self.recording = replace(recording, imu=bridged) if self.gap_bridges else recording
+        screened, self.screening = screen_recording(recording, config.screening)
+        bridged, self.gap_bridges = bridge_imu_gaps(screened.imu, screened.imu_gaps)
+        self.recording = replace(screened, imu=bridged) if self.gap_bridges else screened
         meta = recording.meta
         self.frame = LocalFrame(meta.origin.lat_deg, meta.origin.lon_deg, meta.origin.height_m)
         self.plugins: list[Plugin] = [
-            create_plugin(block.type, block.instance_name, block.options, recording, ("plugins", i))
+            create_plugin(block.type, block.instance_name, block.options, screened, ("plugins", i))
             for i, block in enumerate(config.plugins)
             if block.enabled
         ]
@@ -365,6 +374,7 @@ class Engine:
             recording_name=self.recording.meta.name,
             smoothed=smoothed,
             smoother_peak_steps=smoother.peak_steps if smoother is not None else 0,
+            screening=self.screening,
         )
 
     def _gap_noise(
@@ -437,6 +447,7 @@ class Engine:
             wall_time_s=time.perf_counter() - wall0,
             config=self.config,
             recording_name=self.recording.meta.name,
+            screening=self.screening,
         )
 
     def _context(

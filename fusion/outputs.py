@@ -33,10 +33,8 @@ def write_outputs(
     truth = recording.truth
     if truth is not None:
         files["metrics"] = out / "metrics.json"
-        write_metrics_json(
-            {name: compute_metrics(sol, truth) for name, sol in solutions.items()},
-            files["metrics"],
-        )
+        metrics = {name: compute_metrics(sol, truth) for name, sol in solutions.items()}
+        write_metrics_json({**metrics, "screening": result.screening.to_dict()}, files["metrics"])
     if plots:
         from fusion import plots as figures
 
@@ -66,6 +64,9 @@ def summary(result: RunResult, recording: Recording) -> str:
         f"recording  {result.recording_name}  ({result.duration_s:.1f} s, {len(sol.t)} epochs)",
         f"speed      {result.wall_time_s:.2f} s wall, {result.realtime_factor:.0f}x real time",
         f"final σ    e/n/u {np.array2string(sol.sigma_position[-1], precision=3)} m",
+    ]
+    lines += [
+        f"screened   {entry.describe()}" for entry in result.screening.streams if entry.rejected
     ]
     for name, log in result.innovations.items():
         lines.append(
