@@ -395,6 +395,18 @@ class ScreeningOptions(_Strict):
     support: SupportScreening = SupportScreening()
 
 
+class StreamOptions(_Strict):
+    """How streams are read before any plugin sees them."""
+
+    odometer_max_rate_hz: float | None = Field(
+        2.0,
+        gt=0,
+        description="odometer readings are combined by their exact travel into intervals of at"
+        " least 1/rate (fusion.encoder: an encoder's count quantization averages out; a shearer's"
+        " speed changes over seconds); None: as recorded",
+    )
+
+
 class OutputOptions(_Strict):
     """What ``fusion run`` writes."""
 
@@ -413,6 +425,7 @@ class FusionConfig(_Strict):
     smoother: SmootherOptions = SmootherOptions()
     output: OutputOptions = OutputOptions()
     screening: ScreeningOptions = ScreeningOptions()
+    streams: StreamOptions = StreamOptions()
     bridge_imu_gaps: bool = Field(False, description="accept IMU gaps > 5 samples, reported")
 
     @model_validator(mode="after")

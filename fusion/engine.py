@@ -34,6 +34,7 @@ from fusion import attitude
 from fusion.config import ConfigError, FusionConfig, ImuTuning
 from fusion.dead_reckoning import dead_reckon
 from fusion.earth import LocalFrame
+from fusion.encoder import combine_readings
 from fusion.error_model import (
     ACCEL_BIAS,
     GYRO_BIAS,
@@ -200,6 +201,9 @@ class Engine:
     def __init__(self, config: FusionConfig, recording: Recording) -> None:
         self.config = config
         screened, self.screening = screen_recording(recording, config.screening)
+        rate = config.streams.odometer_max_rate_hz
+        if screened.odometer is not None and rate is not None:
+            screened = replace(screened, odometer=combine_readings(screened.odometer, rate))
         bridged, self.gap_bridges = bridge_imu_gaps(screened.imu, screened.imu_gaps)
         self.recording = replace(screened, imu=bridged) if self.gap_bridges else screened
         meta = recording.meta
