@@ -85,6 +85,9 @@ class RunResult:
     """The RTS-smoothed solution when smoothing is configured."""
     smoother_peak_steps: int = 0
     """Most filter steps held in memory at once for smoothing."""
+    smoother_rejected: int = 0
+    """Output epochs whose smoothed position the forward filter's statistics did not allow
+    (:func:`fusion.smoother.plausible_correction`): they keep the forward estimate."""
     screening: ScreeningReport = field(default_factory=lambda: ScreeningReport(enabled=False))
     """Implausible samples rejected per stream and rule before the run (fusion.screening)."""
 
@@ -315,6 +318,7 @@ class Engine:
             while j < n_events and times[j] - te < 1e-9:
                 j += 1
             sins.advance_to(te)
+            events = len(bank.faults)
             dt = te - t_cov
             phi = None
             if dt > 1e-9:
@@ -348,6 +352,8 @@ class Engine:
             for src, index in stores:
                 self._store(src, index, te, sins, bank)
             if smoother is not None and prior is not None and posterior is not None:
+                if len(bank.faults) != events:  # not one filter's prior and posterior
+                    self._hand_smoothed(smoother.close_window())
                 self._smoothing_step(
                     smoother, bank, te, phi, prior, posterior, dx, sins.nav if is_output else None
                 )
@@ -378,6 +384,7 @@ class Engine:
             recording_name=self.recording.meta.name,
             smoothed=smoothed,
             smoother_peak_steps=smoother.peak_steps if smoother is not None else 0,
+            smoother_rejected=smoother.rejected if smoother is not None else 0,
             screening=self.screening,
         )
 
@@ -424,8 +431,13 @@ class Engine:
         feedback[:15] = correction
         transition = np.eye(dim) if phi is None else bank.smoothing_transition(phi)
         window = smoother.step(t, transition, prior, posterior, feedback, nav_after)
-        if window is not None and window[0].size:
-            t_s, nav_s, cov_s = window
+        if window is not None:
+            self._hand_smoothed(window)
+
+    def _hand_smoothed(self, window: tuple[NDArray[np.float64], ...]) -> None:
+        """Hand the smoothed positions of a window just closed to the plugins."""
+        t_s, nav_s, cov_s = window
+        if t_s.size:
             enu = self.frame.to_enu(nav_s[:, LAT], nav_s[:, LON], nav_s[:, HGT])
             for plugin in self.plugins:
                 plugin.receive_smoothed(t_s, enu, cov_s)

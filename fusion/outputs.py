@@ -79,6 +79,11 @@ def summary(result: RunResult, recording: Recording) -> str:
             f"faults     {actions.count(ISOLATE)} isolations, {actions.count(READMIT)} "
             f"re-admissions, {actions.count(JUMP)} state jumps taken in (faults.csv)"
         )
+    if result.smoother_rejected:
+        lines.append(
+            f"smoother   {result.smoother_rejected} output epochs kept their forward estimate"
+            " (a smoothed correction their statistics did not allow)"
+        )
     estimated = result.config.filter.architecture in ("centralized", "federated")
     for block in result.layout.blocks[3:] if estimated else ():
         est, sd = result.state_estimate(block.name)

@@ -42,6 +42,16 @@ output epoch is kept — (A_j, G_j, B̄_j, u_j) — instead of one per step: an 
 UWB range every 7 ms has 14 filter steps per 0.1-s output epoch. The backward pass then walks
 the output epochs only, from ê_N = x_N⁺, P_N^s = P_N⁺ at the window's last step.
 
+Where the linear model breaks. A step whose prior and posterior are not one filter's — a
+federated local isolated or re-admitted (the fused estimate then comes from other members), a
+jump taken in — is no Markov step of one system: the engine closes the smoothing window before
+it, so that no window spans it (a window smoothed across an isolation returned a NaN σ, and
+across an inconsistent pass a σ of centimetres where the forward pass had metres). And every
+smoothed position is checked against the forward one (:func:`plausible_correction`): a
+correction the forward statistics do not allow keeps the forward estimate, counted in
+:attr:`WindowedSmoother.rejected`; a smoothed track is then never worse than its forward one by
+more than the plausible corrections.
+
 Memory: a :class:`StepStore` keeps the rows of one smoothing window in chunks; chunks beyond a
 memory budget are ``.npy`` files in a temporary directory (spill to disk). Online smoothing (at
 each face end) keeps only the pass being smoothed.
@@ -57,12 +67,17 @@ from pathlib import Path
 
 import numpy as np
 from numpy.typing import NDArray
+from scipy.stats import chi2
 
 from fusion.kalman import cholesky_solve
 from fusion.rows import RowBuffer
 from fusion.strapdown import NAV_SIZE, remove_errors
 
 CHUNK = 2048
+POSITION = slice(6, 9)
+CORRECTION_PROBABILITY = 0.9999
+CORRECTION_THRESHOLD = float(chi2.ppf(CORRECTION_PROBABILITY, 3))
+"""χ²₃ bound of a plausible smoothing correction (:func:`plausible_correction`)."""
 Rows = tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]
 FIELDS = ("offset", "gain", "covariance", "feedback")
 MATRICES = ("gain", "covariance")
@@ -237,6 +252,36 @@ def rts(store: StepStore) -> Iterator[tuple[int, NDArray[np.float64], NDArray[np
         yield j, e - row["feedback"], p
 
 
+def plausible_correction(
+    correction: NDArray[np.float64],
+    smoothed: NDArray[np.float64],
+    forward: NDArray[np.float64],
+) -> bool:
+    """Whether a smoothed position is one the forward filter's own statistics allow.
+
+    For a filter whose model holds, the smoothed estimate knows at least what the filtered one
+    does (``P_f − P_s`` is positive semi-definite) and the correction it applies,
+    ``x_s − x_f``, has that covariance. A correction beyond the χ²₃ quantile
+    :data:`CORRECTION_PROBABILITY` of it, a smoothed covariance larger than the forward one or a
+    non-finite value says the window held steps the smoother's linear model did not describe
+    (a sensor that should have been isolated earlier, a divergence): the forward estimate is
+    kept for that epoch. On the open-loop problem nothing is rejected (the smoother equals
+    filterpy's RTS, ``tests/test_smoother.py``).
+    """
+    if not (np.all(np.isfinite(correction)) and np.all(np.isfinite(smoothed))):
+        return False
+    gained = 0.5 * (forward - smoothed + (forward - smoothed).T)
+    values, vectors = np.linalg.eigh(gained)
+    scale = max(float(np.trace(forward)), 1e-30)
+    if values.min() < -1e-6 * scale or np.linalg.eigvalsh(smoothed).min() < -1e-9 * scale:
+        return False
+    along = vectors.T @ correction
+    keep = values > 1e-9 * scale
+    if np.any(np.abs(along[~keep]) > 1e-6 * np.sqrt(scale)):
+        return False  # a correction where the smoother gained nothing
+    return float(np.sum(along[keep] ** 2 / values[keep])) <= CORRECTION_THRESHOLD
+
+
 class WindowedSmoother:
     """Forward-pass bookkeeping for smoothing over windows that end at given times.
 
@@ -265,8 +310,12 @@ class WindowedSmoother:
         self.t = RowBuffer()
         self.nav = RowBuffer((NAV_SIZE,))
         self.covariance = RowBuffer((3, 3))
+        self._forward = RowBuffer((3, 3))
         self.peak_steps = 0
         self.spilled = False
+        self.rejected = 0
+        """Output epochs whose smoothed position failed :func:`plausible_correction` and kept
+        the forward estimate."""
 
     def step(
         self,
@@ -282,6 +331,7 @@ class WindowedSmoother:
         self.store.append(t, phi, prior, posterior, feedback, nav_after is not None)
         if nav_after is not None:
             self._navs.append(nav_after)
+            self._forward.append(posterior[1][POSITION, POSITION])
         return self.close_window() if self.window_end_due(t) and self.store.n > 1 else None
 
     def close_window(self) -> Rows:
@@ -292,11 +342,14 @@ class WindowedSmoother:
         self.spilled |= store.spilled
         times = np.array(store.t)
         navs = self._navs.take()
-        covariances = np.empty((len(navs), 3, 3))
+        covariances = self._forward.take().copy()
         if times.size:
             for j, d, p in rts(store):
+                if not plausible_correction(d[POSITION], p[POSITION, POSITION], covariances[j]):
+                    self.rejected += 1
+                    continue
                 remove_errors(navs[j], d[0:3], d[3:6], d[6:9])
-                covariances[j] = p[6:9, 6:9]
+                covariances[j] = p[POSITION, POSITION]
         self.t.extend(times)
         self.nav.extend(navs)
         self.covariance.extend(covariances)

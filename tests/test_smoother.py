@@ -9,8 +9,13 @@ import numpy as np
 import pytest
 from filterpy.kalman import KalmanFilter as FilterpyKF
 
+from fusion.config import load_config
+from fusion.engine import Engine
+from fusion.fault_detection import ISOLATE
 from fusion.kalman import KalmanFilter
-from fusion.smoother import StepStore, rts
+from fusion.metrics import compute_metrics
+from fusion.smoother import StepStore, plausible_correction, rts
+from tests.fault_support import clean_and_faulty
 
 CONFIGS = Path(__file__).resolve().parents[1] / "configs"
 
@@ -156,3 +161,37 @@ def test_online_smoothing_needs_a_plugin_that_reports_window_ends() -> None:
     )
     with pytest.raises(ConfigError, match=r"smoother\.mode"):
         Engine(config, make_recording(0, duration=20.0)).run()
+
+
+def test_plausible_correction_allows_what_the_forward_statistics_allow() -> None:
+    """A correction inside the χ²₃ bound of P_f − P_s passes; beyond it, with a smoothed
+    covariance larger than the forward one, a correction where nothing was gained, or a NaN,
+    the forward estimate is kept."""
+    forward = np.diag([0.04, 0.09, 0.01])
+    smoothed = 0.25 * forward
+    gained = np.sqrt(np.diag(forward - smoothed))
+    assert plausible_correction(2.0 * gained, smoothed, forward)
+    assert not plausible_correction(4.0 * gained, smoothed, forward)
+    assert not plausible_correction(np.zeros(3), 2.0 * forward, forward)
+    assert not plausible_correction(np.array([0.1, 0.0, 0.0]), forward, forward)
+    assert plausible_correction(np.zeros(3), forward, forward)
+    assert not plausible_correction(np.array([np.nan, 0.0, 0.0]), smoothed, forward)
+
+
+def test_smoothing_across_isolations_is_finite_and_no_worse(tmp_path: Path) -> None:
+    """full_afkf_rts through 30 s of NLOS on every anchor: the UWB local is isolated and
+    re-admitted, each a step whose fused prior and posterior are not one filter's. The windows
+    close before them: the smoothed track is finite, its σ too, and it is no worse than the
+    forward one (on an independent world the smoother returned a NaN σ from an isolation on)."""
+    nlos = "faults=[{kind: uwb_nlos, t_start: 200, t_end: 230, bias_m: [0.3, 1.5]}]"
+    _, disturbed = clean_and_faulty(tmp_path, nlos)
+    assert disturbed.truth is not None
+    result = Engine(load_config(CONFIGS / "full_afkf_rts.yaml"), disturbed).run()
+    assert any(e.action == ISOLATE for e in result.faults)
+    assert result.smoothed is not None
+    assert np.all(np.isfinite(result.smoothed.position))
+    assert np.all(np.isfinite(result.smoothed.sigma_position))
+    forward = compute_metrics(result.solution, disturbed.truth)["horizontal_rms"]
+    smoothed = compute_metrics(result.smoothed, disturbed.truth)["horizontal_rms"]
+    print(f"horizontal RMS forward {forward:.4f} m, smoothed {smoothed:.4f} m")
+    assert smoothed <= forward
