@@ -80,6 +80,13 @@ class FaultDetectionOptions(_Strict):
     mean_test: bool = Field(
         True, description="also test each plugin's windowed mean whitened innovation (a bias)"
     )
+    mean_probability: float = Field(
+        0.99999,
+        gt=0,
+        lt=1,
+        description="χ² quantile of the mean test (run at every update: its false alarms scale"
+        " with the update rate)",
+    )
 
 
 class JumpDetectionOptions(_Strict):
@@ -153,6 +160,12 @@ class FilterOptions(_Strict):
         ge=0,
         description="low-pass of the specific force in F against vibration (0: step mean;"
         " fusion.error_model.SpecificForceFilter)",
+    )
+    observable_force: bool = Field(
+        True,
+        description="shrink the horizontal specific force in F by its own uncertainty, so that a"
+        " force within its error does not observe the heading (fusion.error_model."
+        "observable_force)",
     )
     discretization: Literal["series", "van_loan"] = "series"
     error_model: Literal["full", "low_speed"] = "full"
@@ -399,11 +412,11 @@ class StreamOptions(_Strict):
     """How streams are read before any plugin sees them."""
 
     odometer_max_rate_hz: float | None = Field(
-        2.0,
+        5.0,
         gt=0,
         description="odometer readings are combined by their exact travel into intervals of at"
-        " least 1/rate (fusion.encoder: an encoder's count quantization averages out; a shearer's"
-        " speed changes over seconds); None: as recorded",
+        " least 1/rate (fusion.encoder: an encoder's count quantization averages out, while a slip"
+        " is still seen within a second or two); None: as recorded",
     )
 
 

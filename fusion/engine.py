@@ -43,6 +43,7 @@ from fusion.error_model import (
     SpecificForceFilter,
     StateLayout,
     common_blocks,
+    observable_force,
 )
 from fusion.fault_detection import FaultEvent
 from fusion.federated import FederatedFilter
@@ -323,6 +324,8 @@ class Engine:
             phi = None
             if dt > 1e-9:
                 f_n = specific_force(sins.take_velocity_increment() / dt, dt)
+                if cfg.observable_force:
+                    f_n = observable_force(f_n, sins.c_b_n, bank.common_covariance())
                 phi, qd = self.model.discrete(sins.nav, f_n, sins.c_b_n, dt)
                 while next_gap is not None and te > next_gap.t_start:
                     qd = qd + self._gap_noise(next_gap, sins, f_n)

@@ -475,6 +475,10 @@ class FederatedFilter:
         for f, beta in zip(members, shares, strict=True):
             f.beta = float(beta)
 
+    def common_covariance(self) -> NDArray[np.float64]:
+        """The fused covariance of the common states (eq. 35)."""
+        return self._global()[1]
+
     def position_covariance(self) -> NDArray[np.float64]:
         """Position block of the fused covariance (no side effects)."""
         p_g = self._global()[1]

@@ -83,6 +83,9 @@ class FilterBank(Protocol):
     def position_covariance(self) -> NDArray[np.float64]:
         """Current 3×3 covariance of the position error (local metres)."""
 
+    def common_covariance(self) -> NDArray[np.float64]:
+        """Current 15×15 covariance of the common SINS error states (read-only)."""
+
     @property
     def smoothing_dim(self) -> int:
         """Dimension of the state the smoother works on."""
@@ -166,6 +169,10 @@ class CentralizedFilter:
     def position_covariance(self) -> NDArray[np.float64]:
         """Position block of P."""
         return self.kf.P[self._position, self._position].copy()
+
+    def common_covariance(self) -> NDArray[np.float64]:
+        """The common block of P (a view)."""
+        return self.kf.P[COMMON, COMMON]
 
     @property
     def smoothing_dim(self) -> int:

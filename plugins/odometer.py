@@ -68,6 +68,7 @@ observes the vertical gyro bias before the heading has drifted on a slow, straig
 from __future__ import annotations
 
 import math
+from collections import deque
 from dataclasses import replace
 from typing import Literal
 
@@ -83,6 +84,27 @@ from plugins.reference_speed import ReferenceSpeed
 from plugins.zaru import ZeroAngularRate
 
 SLIP_PRIOR_SIGMA = 1e-4  # no slip at the start; a jump opens it (fusion.jumps)
+CHI2_1_MEDIAN = 0.4549364  # median of χ²₁
+
+
+def reading_jitter(speed: NDArray[np.float64], window: int) -> NDArray[np.float64]:
+    """Each reading's noise variance as the readings themselves show it (causal).
+
+    Over the ``window`` readings up to this one, ``mean((s_k − s_{k−1})²) / 2``: a machine's
+    speed hardly changes between readings, so consecutive differences are the difference of
+    two readings' noise (white noise, or an encoder's count quantization, whose carried
+    remainder alternates the reading between two count levels). A mean, not a median: the
+    first count steps of a start raise it at once (a median waited for half a window of them,
+    and the scale was learnt from the unweighted ones meanwhile); speed changes can only make
+    it larger. The first readings use the differences there are.
+    """
+    out = np.zeros(speed.size)
+    squares = np.concatenate([[0.0], np.diff(speed) ** 2])
+    total = np.cumsum(squares)
+    count = np.minimum(np.arange(speed.size), window)
+    start = np.maximum(np.arange(speed.size) - window, 0)
+    np.divide(total - total[start], 2.0 * count, out=out, where=count > 0)
+    return out
 
 
 class OdometerOptions(PluginOptions):
@@ -126,6 +148,12 @@ class OdometerOptions(PluginOptions):
     angular_rate_floor_dps: float = Field(
         0.002, ge=0, description="ZARU noise added to the averaged ARW (standstill vibration)"
     )
+    adaptive_noise: bool = Field(
+        True,
+        description="learn each row's noise from the last adaptive_window innovations (robust"
+        " Sage–Husa), at least the configured σ",
+    )
+    adaptive_window: int = Field(50, ge=2, description="innovations of the adaptive noise")
 
     @model_validator(mode="after")
     def _zero_rate_needs_odometer(self) -> OdometerOptions:
@@ -176,6 +204,9 @@ class Odometer(Plugin):
             )[self.rows]
             ** 2
         )
+        self._excess: deque[NDArray[np.float64]] = deque(maxlen=options.adaptive_window)
+        self._index = 0
+        self.jitter = reading_jitter(self.speed, options.adaptive_window)
         self.zero_rate = (
             ZeroAngularRate(recording, options.angular_rate_floor_dps, name)
             if options.zero_angular_rate
@@ -243,6 +274,7 @@ class Odometer(Plugin):
 
     def _velocity(self, index: int, ctx: MeasurementContext) -> Measurement:
         """Residual of the SINS velocity in m against the odometer and the constraint."""
+        self._index = index
         c_n_b = ctx.c_b_n.T
         c_n_m = self.c_b_m @ c_n_b
         measured = np.zeros(3)
@@ -263,7 +295,35 @@ class Odometer(Plugin):
         h[:, ctx.layout.slice(f"{self.name}.mounting_angles")] = -self.c_b_m @ skew(v_b)
         if self.use_speed:
             h[1, scale_states] = -(self.c_b_m @ v_b)[1]
-        return Measurement(z[self.rows], h[self.rows], np.diag(self.variance))
+        z, h = z[self.rows], h[self.rows]
+        return Measurement(z, h, np.diag(self._noise(z, h, ctx)))
+
+    def _noise(
+        self, z: NDArray[np.float64], h: NDArray[np.float64], ctx: MeasurementContext
+    ) -> NDArray[np.float64]:
+        """Each row's variance: the configured one, or learned from the last innovations.
+
+        ``R = max(σ², median(ν² − H P Hᵀ) / 0.455)`` per row over the last ``adaptive_window``
+        updates (0.455: the median of χ²₁, so that a slip's or a stop's few wild innovations
+        neither inflate it). The configured σ is a floor: a quantized encoder (one count per
+        reading is 0.03–0.3 m/s at 5 Hz), a machine whose vibration moves it sideways by
+        centimetres per second, a track that is not where the constraint says: each gets the
+        noise its innovations show, instead of a filter that believes 1 cm/s. The speed row
+        also takes at least the encoder's own jitter (:func:`reading_jitter`), which its readings
+        show from the start of the motion on — the innovations teach R only after a window of
+        them, and a quantized encoder's first readings had set the scale 5 % off by then."""
+        if not self.options.adaptive_noise:
+            return self.variance
+        innovation = z - h @ ctx.x
+        excess = innovation**2 - np.einsum("ij,jk,ik->i", h, ctx.covariance, h)
+        self._excess.append(excess)
+        variance = self.variance.copy()
+        if self.use_speed:  # the encoder's own jitter, known from its first readings on
+            variance[1] = max(variance[1], float(self.jitter[self._index]))
+        if len(self._excess) < self.options.adaptive_window:
+            return variance
+        learned = np.median(np.array(self._excess), axis=0) / CHI2_1_MEDIAN
+        return np.maximum(variance, learned)
 
     @staticmethod
     def _constrained_velocity(
