@@ -151,7 +151,7 @@ _SECTION_OF: dict[str, str | None] = {
     "truth": None,
 }
 # Streams whose meta section carries a rate_hz that is checked against the data.
-_RATE_CHECKED = ("imu", "odometer", "magnetometer", "uwb")
+_RATE_CHECKED = ("imu", "odometer", "magnetometer")
 
 FloatArray = npt.NDArray[np.float64]
 IntArray = npt.NDArray[np.int64]

@@ -492,12 +492,12 @@ def test_rate_within_tolerance(rec: Path) -> None:
     assert validate_recording(rec) == []
 
 
-def test_uwb_rate_is_per_anchor(rec: Path) -> None:
-    edit_meta(rec, lambda m: m["uwb"].update(rate_hz=20))  # whole file is 20 Hz, each anchor 10
-    probs = problems_of(rec)
-    assert len(probs) == 2
-    assert all(p.where.startswith("key uwb.rate_hz") for p in probs)
-    assert "for anchor A1" in probs[0].rule and "for anchor A2" in probs[1].rule
+def test_uwb_rate_is_not_compared_with_the_file(rec: Path) -> None:
+    # uwb.rate_hz is the ranging system's nominal rate, all anchors together: which anchors
+    # answer depends on where the tag is (RECORDING_FORMAT.md), so no value is a problem
+    for rate in (20, 7, 400):
+        edit_meta(rec, lambda m, r=rate: m["uwb"].update(rate_hz=r))
+        assert validate_recording(rec) == []
 
 
 def test_imu_gap_rejected_then_bridged(rec: Path) -> None:
