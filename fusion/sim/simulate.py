@@ -26,6 +26,7 @@ events, the realized IMU errors, the scenario name and the seed are under ``extr
 
 from __future__ import annotations
 
+import copy
 import math
 import time
 from collections.abc import Callable, Sequence
@@ -325,7 +326,14 @@ def _meta(
                 "attitude_deg": list(sig.attitude_deg),
             },
         },
-        "imu": {"rate_hz": sc.imu.rate_hz, "spec": spec_for_meta(sc.imu.error_model)},
+        "imu": {
+            "rate_hz": sc.imu.rate_hz,
+            "spec": (
+                spec_for_meta(sc.imu.error_model)
+                if sc.imu.meta_spec is None
+                else sc.imu.meta_spec.model_dump()
+            ),
+        },
     }
     if sc.odometer is not None:
         data["odometer"] = sc.odometer.meta()
@@ -357,4 +365,8 @@ def _meta(
             {"t": round(e.t, 6), "advance_m": e.advance, "cycle": e.cycle} for e in traj.push_events
         ],
     }
+    if sc.extra:
+        data["extra"].update(copy.deepcopy(sc.extra))
+        if "world" in sc.extra:  # a drawn world: the whole scenario, to reproduce the run
+            data["extra"]["world"]["scenario"] = sc.model_dump(mode="json", exclude={"extra"})
     return rec.RecordingMeta.model_validate(data)
