@@ -43,6 +43,7 @@ from fusion.sim.scenario import (
     Scenario,
     apply_overrides,
     list_presets,
+    parse_override,
     scenario_from_mapping,
 )
 from fusion.sim.scenario import (
@@ -59,6 +60,7 @@ from fusion.sim.sensors import (
     spec_for_meta,
 )
 from fusion.sim.trajectory import Trajectory, TruthChunk
+from fusion.sim.worlds import FAMILIES, family_world
 
 STREAM_KEYS = {
     "trajectory": 1,
@@ -78,14 +80,32 @@ def stream_rng(seed: int, name: str) -> np.random.Generator:
     return np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(STREAM_KEYS[name],)))
 
 
-def load_scenario(name_or_path: str | Path, overrides: Sequence[str] = ()) -> Scenario:
-    """Load a preset by name or a scenario YAML file and apply ``key.sub=value`` overrides."""
+def load_scenario(
+    name_or_path: str | Path, overrides: Sequence[str] = (), *, seed: int = 0
+) -> Scenario:
+    """Load a preset by name, a scenario YAML file or the world of a random family (drawn from
+    ``seed``, :data:`fusion.sim.worlds.FAMILIES`) and apply ``key.sub=value`` overrides.
+
+    An override of ``duration_s`` on a family is passed to the draw, so that the world plans
+    enough cutting cycles for that length.
+    """
+    if isinstance(name_or_path, str) and name_or_path in FAMILIES:
+        duration: float | None = None
+        for text in overrides:
+            path, value = parse_override(text)
+            if path == ["duration_s"] and isinstance(value, int | float):
+                duration = float(value)
+        world = family_world(name_or_path, seed, duration_s=duration)
+        if not overrides:
+            return world
+        data = world.model_dump(mode="json")
+        return scenario_from_mapping(apply_overrides(data, overrides), name_or_path)
     return _load_scenario(name_or_path, overrides)
 
 
 def list_scenarios() -> list[tuple[str, str]]:
-    """``(name, one-line description)`` of the preset scenarios."""
-    return list_presets()
+    """``(name, one-line description)`` of the preset scenarios, then the random families."""
+    return list_presets() + list(FAMILIES.items())
 
 
 class _CsvAppender:
@@ -112,13 +132,13 @@ class _CsvAppender:
         self._fh.close()
 
 
-def _as_scenario(scenario: Scenario | str | Path, overrides: Sequence[str]) -> Scenario:
+def _as_scenario(scenario: Scenario | str | Path, overrides: Sequence[str], seed: int) -> Scenario:
     if isinstance(scenario, Scenario):
         if not overrides:
             return scenario
         data = scenario.model_dump(mode="json")
         return scenario_from_mapping(apply_overrides(data, overrides), scenario.name)
-    return load_scenario(scenario, overrides)
+    return load_scenario(scenario, overrides, seed=seed)
 
 
 def _uwb_model(sc: Scenario, traj: Trajectory) -> UwbModel | None:
@@ -156,7 +176,9 @@ def simulate(
     Parameters
     ----------
     scenario
-        A :class:`Scenario`, a preset name or a YAML path.
+        A :class:`Scenario`, a preset name, a YAML path or a random family
+        (``longwall-random``…, :data:`fusion.sim.worlds.FAMILIES`: the world drawn from
+        ``seed``).
     out_dir
         Output recording directory (created; files of this run are overwritten).
     seed
@@ -171,7 +193,7 @@ def simulate(
     Path
         The recording directory.
     """
-    sc = _as_scenario(scenario, overrides)
+    sc = _as_scenario(scenario, overrides, seed)
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     for stem in rec.STREAM_COLUMNS:  # stale stream files of an earlier run
