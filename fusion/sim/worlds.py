@@ -190,7 +190,9 @@ class WorldRanges(_Ranges):
     initial_velocity_sigma_mps: Range = _range(0.005, 0.02, "meta σ per axis (m/s)")
     # odometer
     odometer_rate_hz: list[float] = Field(
-        default_factory=lambda: [10.0, 20.0, 50.0], description="choices"
+        default_factory=lambda: [10.0, 20.0],
+        description="choices (the engine updates at every reading: 50 Hz runs at a few times"
+        " real time)",
     )
     odometer_scale_error: Range = _range(-0.03, 0.03, "scale-factor error δk_D")
     odometer_mounting_deg: Range = _range(-1.0, 1.0, "mounting angle, per axis (deg)")
@@ -201,7 +203,7 @@ class WorldRanges(_Ranges):
     odometer_counts_per_m: Range = _range(50.0, 2000.0, "log-uniform: encoder counts per m")
     # magnetometer
     mag_rate_hz: list[float] = Field(
-        default_factory=lambda: [10.0, 50.0, 100.0], description="choices"
+        default_factory=lambda: [10.0, 20.0, 50.0], description="choices"
     )
     field_uT: Range = _range(45.0, 60.0, "true earth field F (µT)")
     inclination_deg: Range = _range(35.0, 65.0, "true inclination I (deg)")
