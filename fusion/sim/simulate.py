@@ -18,6 +18,11 @@ IMU is mounted on it with the odometer section's residual mounting angles δα
 (``C_b^m = exp(−δα×)``), so that the truth attitude, the IMU and the motion constraint are the
 IMU's and the mounting angles are observable, as in seed 000.
 
+A stream file is written whenever the scenario has the sensor, even when no row falls inside
+the recording: a support section whose recording ends before the first AFC push gives a
+header-only ``support.csv`` (the sensor was logging and saw no push; the reader accepts it as
+a stream of zero rows), which is what the presets have always written for short runs.
+
 ``meta.yaml`` holds the *perturbed* initial state (truth + a seeded draw from the scenario's
 1-σ, unless ``initial.perturb`` is false) with that σ, so that a filter starts with a realistic
 error; the true initial state, the injected faults (``{type, t_start, t_end, …}``), the AFC push
