@@ -169,7 +169,13 @@ class WorldRanges(_Ranges):
     vibration_freq_hz: Range = _range(3.0, 60.0, "sub-range: vibration frequencies (Hz)")
     vibration_components: IntRange = _range(1, 5, "sinusoids per axis")
     vibration_clean_scale: Range = _range(0.0, 0.5, "vibration on cleaning/return runs")
-    # IMU (realized errors; MEMS ranges around the MTi-G-700 / MTi-30 presets of IMU_GRADES)
+    # IMU: the realized errors. Sources (fusion.sim.sensors.IMU_GRADES and datasheets): MTi-G-700
+    # (seed 000 Table 1) ARW 0.6 deg/√h, 0.08 mg/√Hz, in-run bias 10 deg/h and 0.04 mg, bias
+    # repeatability 720 deg/h and 3 mg; MTi-30 (seed 003 Table 1) in-run bias 18 deg/h; the
+    # seed 002 MEMS 3 deg/h and 1 mg biases, ARW 0.04 deg/√h; ADIS16488-class units 0.3 deg/√h,
+    # 5 deg/h in-run bias, 0.05 mg/√Hz. A unit's turn-on bias is usually far below its
+    # datasheet's repeatability, hence 10–720 deg/h and 0.2–5 mg drawn log-uniformly; scale
+    # factor and misalignment: 0.1–0.15 % and 0.05–0.1° class figures of calibrated MEMS units.
     imu_rate_hz: list[float] = Field(default_factory=lambda: [100.0], description="choices")
     gyro_bias_deg_h: Range = _range(10.0, 720.0, "log-uniform: turn-on gyro bias σ (deg/h)")
     accel_bias_mg: Range = _range(0.2, 5.0, "log-uniform: turn-on accel bias σ (mg)")
