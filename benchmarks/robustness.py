@@ -5,9 +5,9 @@
 runs each configuration of ``configs/`` except the real datasets' ``real_*`` ones on each (the
 dead-reckoning and standalone ones included: :data:`ROBUSTNESS_CONFIGS`). Every
 (world, configuration) runs in a child process (``python -m benchmarks.robustness CONFIG
-RECORDING``) with a time limit, so that an exception, a crash, a non-zero exit, a run slower
-than :data:`TIMEOUT_RTF` times real time or a non-finite output counts as one *failed run* and
-the suite goes on. ``robustness-smoke`` is the CI variant: 20 short worlds
+RECORDING``) with a CPU-time limit, so that an exception, a crash, a non-zero exit, a run
+that does not reach :data:`TIMEOUT_RTF` times real time or a non-finite output counts as one
+*failed run* and the suite goes on. ``robustness-smoke`` is the CI variant: 20 short worlds
 (``longwall-random-short`` at :data:`SMOKE_DURATION_S`) and :data:`SMOKE_CONFIGS`, run
 in-process (exceptions and non-finite outputs are caught per run the same way).
 
@@ -33,6 +33,8 @@ from __future__ import annotations
 
 import json
 import os
+import resource
+import signal
 import subprocess
 import sys
 import tempfile
@@ -59,9 +61,12 @@ REPO = Path(__file__).resolve().parents[1]
 NEAR_ANCHOR_M = 12.0
 """Tag-to-anchor distance (m) of the near-anchor error."""
 TIMEOUT_RTF = 4.0
-"""A child run that takes longer than the recording's duration divided by this (plus
-:data:`TIMEOUT_BASE_S`) is stopped and fails (the configurations run at 100–1000× real time)."""
+"""A child run that uses more CPU time than the recording's duration divided by this (plus
+:data:`TIMEOUT_BASE_S`) is stopped and fails (the configurations run at 15–1000× real time on
+these worlds). CPU time, so that a loaded machine does not fail runs; a wall-clock limit of
+:data:`WALL_FACTOR` times that catches a child that hangs without computing."""
 TIMEOUT_BASE_S = 120.0
+WALL_FACTOR = 6.0
 RATIO = ("full_afkf", "full_ckf")
 RATIO_METHOD = f"{RATIO[0]} / {RATIO[1]}"
 
@@ -273,11 +278,13 @@ def _run_child(config: FusionConfig, rec: Path, work: Path, duration_s: float) -
     """:func:`run_one` in a child process with a time limit; its rows, or raises."""
     cfg_path = work / "config.yaml"
     cfg_path.write_text(config.to_yaml(), encoding="utf-8")
-    env = {
-        **os.environ,
-        "PYTHONPATH": os.pathsep.join([str(REPO), os.environ.get("PYTHONPATH", "")]),
-    }
-    limit = TIMEOUT_BASE_S + duration_s / TIMEOUT_RTF
+    path = os.pathsep.join([str(REPO), os.environ.get("PYTHONPATH", "")])
+    env = {**os.environ, "PYTHONPATH": path}
+    limit = int(TIMEOUT_BASE_S + duration_s / TIMEOUT_RTF)
+
+    def cpu_limit() -> None:  # in the child: SIGXCPU after `limit` s of CPU time
+        resource.setrlimit(resource.RLIMIT_CPU, (limit, limit + 10))
+
     try:
         proc = subprocess.run(
             [sys.executable, "-m", "benchmarks.robustness", str(cfg_path), str(rec)],
@@ -285,11 +292,14 @@ def _run_child(config: FusionConfig, rec: Path, work: Path, duration_s: float) -
             text=True,
             cwd=REPO,
             env=env,
-            timeout=limit,
+            timeout=WALL_FACTOR * limit,
             check=False,
+            preexec_fn=cpu_limit,
         )
     except subprocess.TimeoutExpired:
-        raise TimeoutError(f"no result after {limit:.0f} s") from None
+        raise TimeoutError(f"no result after {WALL_FACTOR * limit:.0f} s wall time") from None
+    if proc.returncode == -signal.SIGXCPU:
+        raise TimeoutError(f"CPU time limit of {limit} s exceeded")
     if proc.returncode != 0:
         tail = " | ".join(proc.stderr.strip().splitlines()[-2:])
         raise RuntimeError(f"exit {proc.returncode}: {tail}")
