@@ -150,11 +150,13 @@ class WorldRanges(_Ranges):
     line_deviation_wavelength_m: Range = _range(20.0, 100.0, "range: its wavelengths (m)")
     line_deviation_persistence: Range = _range(0.5, 0.9, "share of the deviation kept per push")
     waviness_m: Range = _range(0.0, 0.15, "AFC waviness amplitude (m)")
+    waviness_wavelength_m: Range = _range(15.0, 200.0, "its three wavelengths (m)")
     waviness_decorrelation_m: Range = _range(5.0, 30.0, "advance over which waviness drifts (m)")
     floor_slope_along_deg: Range = _range(-8.0, 8.0, "floor slope along the face (deg)")
     floor_dip_across_deg: Range = _range(-8.0, 8.0, "floor dip in the advance direction (deg)")
     floor_undulation_m: Range = _range(0.0, 1.0, "floor undulation amplitude (m)")
     floor_wavelength_m: Range = _range(20.0, 150.0, "floor undulation wavelengths (m), 2-3")
+    floor_across_wavelength_m: Range = _range(30.0, 120.0, "its wavelength across the face (m)")
     # motion
     cut_speed_mpm: Range = _range(2.0, 10.0, "sub-range: cutting-run speeds (m/min)")
     clean_speed_mpm: Range = _range(6.0, 15.0, "sub-range: cleaning/return-run speeds (m/min)")
@@ -382,7 +384,9 @@ def draw_world(
         },
         "waviness": {
             "amplitude_m": _r(g.u(rg.waviness_m)),
-            "wavelengths_m": [_r(x, 3) for x in sorted(g.rng.uniform(15.0, 200.0, 3))],
+            "wavelengths_m": [
+                _r(x, 3) for x in sorted(g.rng.uniform(*rg.waviness_wavelength_m, size=3))
+            ],
             "decorrelation_m": _r(g.u(rg.waviness_decorrelation_m), 3),
         },
         "floor": {
@@ -390,7 +394,7 @@ def draw_world(
             "dip_across_deg": _r(g.u(rg.floor_dip_across_deg), 4),
             "undulation_m": _r(g.u(rg.floor_undulation_m)),
             "wavelengths_m": [_r(g.u(rg.floor_wavelength_m), 3) for _ in range(n_floor)],
-            "across_wavelength_m": _r(g.u((30.0, 120.0)), 3),
+            "across_wavelength_m": _r(g.u(rg.floor_across_wavelength_m), 3),
         },
     }
     origin = {
