@@ -56,7 +56,7 @@ def plan_fault(scenario: str, seed: int, kind: str, overrides: Sequence[str] = (
     """
     if kind not in FAULT_KINDS:
         raise ValueError(f"unknown fault kind {kind!r} (known: {', '.join(FAULT_KINDS)})")
-    sc = load_scenario(scenario, overrides)
+    sc = load_scenario(scenario, overrides, seed=seed)  # a random family draws its world
     traj = Trajectory(sc, stream_rng(seed, "trajectory"))
     t = np.arange(0.0, traj.duration, 1.0)
     state = traj.evaluate(t)

@@ -72,6 +72,8 @@ def write_suite(
         f"{runs} run(s) per row (seeds 0…{runs - 1}). `{command}`, {date}, on {describe_machine()}."
     )
     parts.append("")
+    if suite.preamble is not None:
+        parts.append(suite.preamble())
     for table in tables:
         (out / f"{table.spec.name}.csv").write_text(to_csv(table), encoding="utf-8")
         parts.append(to_markdown(table))
@@ -141,6 +143,8 @@ def write_results_md(suites: Sequence[Suite], root: Path, command: str) -> Path:
         "",
     ]
     for suite in suites:
+        if not suite.in_results:
+            continue
         md = root / suite.name / "results.md"
         if not md.exists():
             kept = committed_section(old, suite.name)

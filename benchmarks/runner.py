@@ -131,6 +131,9 @@ class Task:
     scenario_overrides: tuple[str, ...] = ()
     fault: str | None = None
     keep_traces: bool = False
+    executor: str = "default"
+    """``robustness``: :func:`benchmarks.robustness.execute` runs the task instead of
+    :func:`execute_task`'s own loop."""
 
 
 @dataclass
@@ -447,6 +450,10 @@ def execute_task(task: Task) -> TaskResult:
         One row per method and solution; notes for methods whose configuration does not exist
         or whose run failed (the failure message is kept, the campaign goes on).
     """
+    if task.executor == "robustness":
+        from benchmarks.robustness import execute
+
+        return execute(task)
     base = {"suite": task.suite, "group": task.group, "scenario": task.scenario, "seed": task.seed}
     out = TaskResult()
     overrides = list(task.scenario_overrides)

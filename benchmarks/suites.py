@@ -16,6 +16,9 @@ The seed papers' figures beside ours (``/work/shared/MISSION.md`` and ``shared/s
   SINS/OD/MAG 0.22 / 0.32; under magnetic interference CKF 3.83 / 1.94, FKF 1.55 / 1.94;
 * seed 004 §3.2 (underground) — mean x/z error (m): UWB-only 0.128 / 0.239, IMU/UWB
   0.102 / 0.194, smoothed 0.082 / 0.158; its x is across the face (Table 5 y runs along it), z up.
+
+The ``robustness`` suites (:mod:`benchmarks.robustness`) have no paper figure: they run every
+configuration on randomized worlds (:mod:`fusion.sim.worlds`) and count what breaks.
 """
 
 from __future__ import annotations
@@ -28,6 +31,13 @@ from typing import Any
 import yaml
 
 from benchmarks.faults import FAULT_KINDS
+from benchmarks.robustness import (
+    ranges_preamble,
+    robustness_tables,
+    robustness_tasks,
+    smoke_tables,
+    smoke_tasks,
+)
 from benchmarks.runner import Method, Task, describe_machine
 from benchmarks.tables import Column, RowSpec, TableSpec
 from fusion.config import find_config
@@ -45,6 +55,10 @@ class Suite:
     tasks: Callable[[int, tuple[str, ...]], list[Task]]
     """(runs, scenario overrides for every task) → tasks."""
     tables: Callable[[], list[TableSpec]]
+    preamble: Callable[[], str] | None = None
+    """Markdown written under the suite's heading, before its tables."""
+    in_results: bool = True
+    """Run by ``all`` and given a section of RESULTS.md (not the CI smoke suite)."""
 
 
 def config_names() -> list[str]:
@@ -553,6 +567,23 @@ SUITES: dict[str, Suite] = {
             ablation_tables,
         ),
         Suite("speed", "real-time factor and memory, longwall-shift", 1, speed_tasks, speed_tables),
+        Suite(
+            "robustness",
+            "every configuration on randomized worlds (fusion.sim.worlds)",
+            20,
+            robustness_tasks,
+            robustness_tables,
+            preamble=ranges_preamble,
+        ),
+        Suite(
+            "robustness-smoke",
+            "CI: short random worlds, a subset of the configurations",
+            20,
+            smoke_tasks,
+            smoke_tables,
+            preamble=ranges_preamble,
+            in_results=False,
+        ),
     )
 }
 """The suites by name."""

@@ -29,6 +29,10 @@ class Column:
     digits: int = 2
     group: str | None = None
     """Average the runs of this group instead of the row's (a pivot, e.g. one column per fault)."""
+    agg: str = "mean"
+    """How the runs combine: ``mean`` (mean ± std), ``median``, ``max``, ``min``, ``sum``,
+    ``pooled_rms`` (``sqrt(Σ FIELD_sumsq / Σ FIELD_count)``) or ``per_hour``
+    (``Σ FIELD / Σ duration_h`` over the runs where FIELD is finite)."""
 
 
 @dataclass(frozen=True)
@@ -59,12 +63,15 @@ class TableSpec:
 
 @dataclass
 class Cell:
-    """Statistics of one column over the runs of one row."""
+    """Statistics of one column over the runs of one row (``mean`` holds the aggregate of a
+    column whose ``agg`` is not ``mean``; ``std`` is then NaN)."""
 
     mean: float
     std: float
     n: int
     paper: float | None
+    single: bool = False
+    """Print the value alone (an aggregate other than the mean)."""
 
 
 @dataclass
@@ -81,6 +88,35 @@ def _stats(values: Sequence[float]) -> tuple[float, float, int]:
     if arr.size == 0:
         return float("nan"), float("nan"), 0
     return float(arr.mean()), float(arr.std()), int(arr.size)
+
+
+def _finite(values: Sequence[Any]) -> np.ndarray:
+    return np.asarray(
+        [v for v in values if v is not None and isinstance(v, int | float) and math.isfinite(v)],
+        float,
+    )
+
+
+def _aggregate(column: Column, rows: Sequence[dict[str, Any]]) -> Cell:
+    """A column's ``agg`` (not ``mean``) over the selected runs."""
+    nan = float("nan")
+    if column.agg == "pooled_rms":
+        total = _finite([r.get(f"{column.field}_sumsq") for r in rows]).sum()
+        count = _finite([r.get(f"{column.field}_count") for r in rows]).sum()
+        value = math.sqrt(total / count) if count > 0 else nan
+        return Cell(value, nan, int(count > 0), None, True)
+    if column.agg == "per_hour":
+        used = [r for r in rows if _finite([r.get(column.field)]).size]
+        hours = _finite([r.get("duration_h") for r in used]).sum()
+        events = _finite([r.get(column.field) for r in used]).sum()
+        return Cell(events / hours if hours > 0 else nan, nan, len(used), None, True)
+    arr = _finite([r.get(column.field) for r in rows])
+    if arr.size == 0:
+        return Cell(nan, nan, 0, None, True)
+    funcs = {"median": np.median, "max": np.max, "min": np.min, "sum": np.sum}
+    if column.agg not in funcs:
+        raise ValueError(f"column {column.field}: unknown agg {column.agg!r}")
+    return Cell(float(funcs[column.agg](arr)), nan, int(arr.size), None, True)
 
 
 def build_table(spec: TableSpec, rows: Sequence[dict[str, Any]]) -> Table:
@@ -100,6 +136,9 @@ def build_table(spec: TableSpec, rows: Sequence[dict[str, Any]]) -> Table:
         line = []
         for c in spec.columns:
             chosen = runs_of(c.group or r.group, r)
+            if c.agg != "mean":
+                line.append(_aggregate(c, chosen))
+                continue
             mean, std, n = _stats([row.get(c.field, float("nan")) for row in chosen])
             key = c.field if c.group is None else f"{c.field}@{c.group}"
             line.append(Cell(mean, std, n, spec.paper.get((r.label, key))))
@@ -119,7 +158,7 @@ def format_cell(cell: Cell, digits: int) -> str:
     """``mean ± std`` (just ``mean`` for a single run), then ``(paper)`` when known."""
     if cell.n == 0:
         text = "—"
-    elif cell.n == 1:
+    elif cell.n == 1 or cell.single:
         text = _number(cell.mean, digits)
     else:
         text = f"{_number(cell.mean, digits)} ± {_number(cell.std, digits)}"
@@ -144,7 +183,7 @@ def to_markdown(table: Table) -> str:
     notes = []
     if has_paper:
         notes.append("mean ± std over the runs; (the seed paper's figure)")
-    else:
+    elif any(c.agg == "mean" for c in spec.columns):
         notes.append("mean ± std over the runs")
     if spec.note:
         notes.append(spec.note)

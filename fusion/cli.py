@@ -1,5 +1,5 @@
-"""The ``fusion`` command: run, validate, validate-config, simulate, sim-plot, import, demo,
-plugins."""
+"""The ``fusion`` command: run, validate, validate-config, simulate, scenarios, sim-plot, import,
+demo, plugins."""
 
 from __future__ import annotations
 
@@ -13,8 +13,10 @@ EXAMPLES = """\
 examples:
   fusion demo --out out/demo
       simulate the default longwall recording, fuse it, write solution, metrics and plots
-  fusion simulate --list
+  fusion scenarios
   fusion simulate longwall-200m rec/ --seed 3 --set motion.vibration=false
+  fusion simulate longwall-random rec/ --seed 7 --set duration_s=900
+      a random longwall world drawn from seed 7 (also longwall-random-short, -harsh)
   fusion validate rec/
   fusion import broad ../shared/datasets/broad/05_undisturbed_slow_rotation_with_breaks_B.mat rec/
   fusion run --config configs/sins_only.yaml --recording rec/ --out out/
@@ -97,16 +99,22 @@ def _cmd_validate_config(args: argparse.Namespace) -> int:
 
 
 def _cmd_simulate(args: argparse.Namespace) -> int:
-    from fusion.sim.simulate import list_scenarios, simulate
+    from fusion.sim.simulate import simulate
 
     if args.list:
-        for name, description in list_scenarios():
-            print(f"{name:32s} {description}")
-        return 0
+        return _cmd_scenarios(args)
     if args.scenario is None or args.out is None:
         raise SystemExit("fusion simulate: give SCENARIO and OUT (or --list)")
     path = simulate(args.scenario, args.out, seed=args.seed, overrides=args.set)
     print(f"wrote recording {path}")
+    return 0
+
+
+def _cmd_scenarios(args: argparse.Namespace) -> int:
+    from fusion.sim.simulate import list_scenarios
+
+    for name, description in list_scenarios():
+        print(f"{name:32s} {description}")
     return 0
 
 
@@ -190,7 +198,11 @@ def build_parser() -> argparse.ArgumentParser:
     valc.set_defaults(func=_cmd_validate_config)
 
     sim = sub.add_parser("simulate", help="write a simulated recording")
-    sim.add_argument("scenario", nargs="?", help="preset name or scenario YAML")
+    sim.add_argument(
+        "scenario",
+        nargs="?",
+        help="preset name, scenario YAML or random family (the world drawn from --seed)",
+    )
     sim.add_argument("out", nargs="?", help="recording directory to write")
     sim.add_argument("--seed", type=int, default=0)
     sim.add_argument(
@@ -200,8 +212,13 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="KEY=VALUE",
         help="override a scenario key (dotted path), repeatable",
     )
-    sim.add_argument("--list", action="store_true", help="list the scenario presets")
+    sim.add_argument(
+        "--list", action="store_true", help="list the scenario presets and random families"
+    )
     sim.set_defaults(func=_cmd_simulate)
+
+    scen = sub.add_parser("scenarios", help="list the scenario presets and random families")
+    scen.set_defaults(func=_cmd_scenarios)
 
     plot = sub.add_parser("sim-plot", help="plot a recording's truth (plan, speed, attitude)")
     plot.add_argument("recording")

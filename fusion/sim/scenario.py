@@ -6,7 +6,9 @@ errors and every error names its dotted key path). It declares
 * ``origin`` — the geodetic point whose ENU axes carry all positions (the near end of the first
   cutting line for a face, the start of a track);
 * exactly one shape: ``face`` (a longwall: straight cutting passes, terminal oblique cutting at
-  each end, AFC advanced by the web depth per cycle) or ``track`` (a vehicle that turns: a
+  each end, AFC advanced by the web depth per cycle; optionally unidirectional or three-pass
+  cycles with cleaning runs, re-cuts, face ends that move from cycle to cycle and an AFC
+  whose straightness changes at every push) or ``track`` (a vehicle that turns: a
   closed polygon driven in laps, or an open broken line);
 * ``motion`` — cruise speeds, ramps, random stops, cutting vibration;
 * ``imu`` — output rate, grade preset or explicit error model, quadrature nodes, truth rate;
@@ -14,6 +16,12 @@ errors and every error names its dotted key path). It declares
   is perturbed by a seeded draw from it;
 * optional sensor sections (``odometer``, ``magnetometer``, ``uwb``, ``support``) whose models
   come from :mod:`fusion.sim.sensors`, and ``faults`` from :mod:`fusion.sim.faults`.
+
+``extra`` (free-form, default empty) is copied under meta.yaml ``extra:``; the random family
+of :mod:`fusion.sim.worlds` records its draw there.
+
+Every new field defaults to the behaviour the simulator had before it existed: a preset
+written before them gives byte-identical CSV files.
 
 Every scenario starts with a static period (``static_start_s``, default 60 s, cycle index 0)
 and ends with one (``static_end_s``). ``duration_s`` (optional) truncates the run or pads it
@@ -47,6 +55,7 @@ from fusion.sim.faults import FaultSpec
 from fusion.sim.sensors import (
     IMU_GRADES,
     ImuErrorModel,
+    ImuSpecFigures,
     MagnetometerModel,
     OdometerModel,
     PositionFixModel,
@@ -101,8 +110,69 @@ class Floor(_Strict):
     across_wavelength_m: float = Field(default=60.0, gt=0.0)
 
 
+class LineDeviation(_Strict):
+    """Independent straightness change of the AFC at every push (on top of :class:`Waviness`).
+
+    Line j (j = 0 before the first push) gets the lateral deviation
+    ``δ_j(s) = ρ δ_{j−1}(s) + ε_j(s)``, ``δ_0 = 0``, where every push draws a new smooth
+    ``ε_j(s) = Σ_i C_i sin(2π s/λ_i + φ_i)`` of ``components`` sinusoids with wavelengths
+    uniform in ``wavelengths_m``, random phases and ``C_i = σ √(2/components)`` (RMS σ). So each
+    line differs from the previous line plus the advance by about σ (``√(1 + (1−ρ)/(1+ρ)) σ``),
+    and ρ < 1 (``persistence``) keeps the accumulated deviation bounded
+    (stationary RMS ``σ/√(1 − ρ²)``), as the face crew steers the line back.
+    ``sigma_m = 0`` (default) switches it off.
+    """
+
+    sigma_m: float = Field(default=0.0, ge=0.0, description="RMS of each push's new deviation")
+    wavelengths_m: tuple[float, float] = (20.0, 100.0)
+    components: int = Field(default=3, ge=1)
+    persistence: float = Field(default=0.7, ge=0.0, le=1.0)
+
+    @model_validator(mode="after")
+    def _check(self) -> LineDeviation:
+        lo, hi = self.wavelengths_m
+        if not 0.0 < lo <= hi:
+            raise ValueError(f"wavelengths_m must satisfy 0 < lo <= hi, got {(lo, hi)}")
+        return self
+
+
+class Recut(_Strict):
+    """Re-cuts: with ``probability`` per run the shearer stops mid-face (between 20 % and 80 %
+    of the run), backs up a distance uniform in ``distance_m`` (at most 90 % of the way it
+    came), stops again and drives on to the end of the run. Each stop lasts ``dwell_s``
+    (uniform). A reversal in the middle of the face that is not a face end."""
+
+    probability: float = Field(default=0.0, ge=0.0, le=1.0)
+    distance_m: tuple[float, float] = (2.0, 20.0)
+    dwell_s: tuple[float, float] = (3.0, 20.0)
+
+
+FacePattern = Literal["bidirectional", "unidirectional", "three_pass"]
+
+PATTERN_RUNS: dict[str, tuple[str, ...]] = {
+    "bidirectional": ("cut",),
+    "unidirectional": ("cut", "clean"),
+    "three_pass": ("cut", "clean", "return"),
+}
+"""The face traversals of one cutting cycle of each pattern (directions alternate)."""
+
+
 class Face(_Strict):
-    """Longwall face: the AFC line, the web depth and the mining cycle."""
+    """Longwall face: the AFC line, the web depth and the mining cycle.
+
+    ``pattern`` (see :data:`PATTERN_RUNS`): ``bidirectional`` cuts on every traversal (the
+    default, one run per cycle); ``unidirectional`` cuts one way and runs back cleaning
+    (``cut, clean``); ``three_pass`` cuts, cleans back and returns (``cut, clean, return``).
+    Every traversal reverses the direction of the previous one. The AFC is pushed (the terminal
+    oblique-cut manoeuvre at the face end where the shearer stands, with its push event) after
+    run ``push_after_run`` of each cycle (index into the pattern's runs; default the last run);
+    the other runs end with a plain stop (``end_dwell_s``) before reversing.
+
+    Face ends: the run extremes along the face are ``ξ_A = a tan(end_skew_deg[0]) + j_A`` and
+    ``ξ_B = L + a tan(end_skew_deg[1]) + j_B`` on the line of advance offset a (ends not square
+    to the face), with ``j`` uniform in ``±end_jitter_m`` per cycle and end (over-run / short
+    fall); the first cycle's ends are exactly 0 and L (the surveyed ends of meta.yaml).
+    """
 
     length_m: float = Field(default=200.0, gt=1.0)
     azimuth_deg: float = 92.0
@@ -116,6 +186,32 @@ class Face(_Strict):
     maneuver_speed_mpm: float = Field(default=4.0, gt=0.0)
     waviness: Waviness = Waviness()
     floor: Floor = Floor()
+    pattern: FacePattern = "bidirectional"
+    push_after_run: int | None = Field(
+        default=None, ge=0, description="run index of the cycle after which the AFC is pushed"
+    )
+    end_skew_deg: tuple[float, float] = Field(
+        default=(0.0, 0.0), description="skew of the face ends A and B (deg, +: towards +ξ)"
+    )
+    end_jitter_m: float = Field(default=0.0, ge=0.0, description="per-cycle end over-run (m)")
+    line_deviation: LineDeviation = LineDeviation()
+    recut: Recut = Recut()
+
+    @model_validator(mode="after")
+    def _check_pattern(self) -> Face:
+        runs = len(PATTERN_RUNS[self.pattern])
+        if self.push_after_run is not None and self.push_after_run >= runs:
+            raise ValueError(
+                f"push_after_run must be below {runs} (the runs of a {self.pattern} cycle)"
+            )
+        if any(abs(a) >= 60.0 for a in self.end_skew_deg):
+            raise ValueError("end_skew_deg must lie in (-60, 60)")
+        return self
+
+    @property
+    def runs(self) -> tuple[str, ...]:
+        """The kinds of the runs of one cycle (``cut``, ``clean``, ``return``)."""
+        return PATTERN_RUNS[self.pattern]
 
 
 class Track(_Strict):
@@ -165,12 +261,22 @@ class Vibration(_Strict):
     angular_dps: float = Field(default=0.3, ge=0.0)
     freq_hz: tuple[float, float] = (5.0, 30.0)
     components: int = Field(default=3, ge=1)
+    clean_scale: float = Field(
+        default=0.3, ge=0.0, le=1.0, description="envelope on cleaning and return runs"
+    )
 
 
 class Motion(_Strict):
-    """Speed profile: cruise speeds, ramps, speed changes and stops."""
+    """Speed profile: cruise speeds, ramps, speed changes and stops.
+
+    Each run (and each piece of a run between stops) draws its cruise speed uniformly in
+    ``speed_mpm`` (cutting runs, track drives) or ``clean_speed_mpm`` (cleaning and return runs).
+    """
 
     speed_mpm: tuple[float, float] = (2.0, 8.0)
+    clean_speed_mpm: tuple[float, float] | None = Field(
+        default=None, description="speed of cleaning and return runs; None: speed_mpm"
+    )
     accel_mps2: float = Field(default=0.02, gt=0.0)
     min_ramp_s: float = Field(default=2.0, gt=0.0)
     speed_changes_per_hour: float = Field(default=6.0, ge=0.0)
@@ -189,12 +295,18 @@ class Imu(_Strict):
 
     ``grade`` names a preset of :data:`fusion.sim.sensors.IMU_GRADES`; ``errors`` (an explicit
     :class:`~fusion.sim.sensors.ImuErrorModel`) replaces it when given. ``truth_rate_hz``
-    (default: the IMU rate) must divide the IMU rate.
+    (default: the IMU rate) must divide the IMU rate. ``meta_spec`` states the datasheet
+    figures written to meta.yaml ``imu.spec`` apart from the error model the simulator uses (a
+    real unit's turn-on biases are usually far below its datasheet's repeatability); by default
+    they are derived from the error model (:func:`fusion.sim.sensors.spec_for_meta`).
     """
 
     rate_hz: float = Field(default=100.0, gt=0.0)
     grade: str = "mti-g-700"
     errors: ImuErrorModel | None = None
+    meta_spec: ImuSpecFigures | None = Field(
+        default=None, description="datasheet figures for meta.yaml; None: from the error model"
+    )
     quadrature_nodes: int = Field(default=6, ge=1, le=16)
     truth_rate_hz: float | None = Field(default=None, ge=10.0)
 
@@ -260,6 +372,10 @@ class Scenario(_Strict):
     support: SupportModel | None = None
     position: PositionFixModel | None = None
     faults: list[FaultSpec] = Field(default_factory=list)
+    extra: dict[str, Any] = Field(
+        default_factory=dict,
+        description="free-form record copied under meta.yaml extra (e.g. a drawn world)",
+    )
 
     @model_validator(mode="after")
     def _one_shape(self) -> Scenario:

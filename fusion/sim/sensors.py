@@ -76,13 +76,27 @@ Magnetometer (:class:`MagnetometerModel`, seed 003 §3.2)
 
     with soft iron S (3×3 near I), hard iron h, ramped ``magnetic_interference`` fields b_f and
     white noise n. Attitude between IMU samples is the element-wise linear interpolation of C_b^n
-    (second-order error, ~1e-8 for shearer turn rates).
+    (second-order error, ~1e-8 for shearer turn rates). meta.yaml states F, I and D, or the
+    ``meta_*`` values when given (a site's model field differs from the true one by a few per
+    cent / degrees).
 
 UWB (:class:`UwbModel`, seed 004 §2)
-    Rounds at ``rate_hz``; in round j the anchors (in ``anchors`` order, index i of n) are
-    ranged at the staggered times ``t = (j·n + i) / (n·rate)``, because the recording contract
-    requires strictly increasing times in uwb.csv. The tag is at ``p + C_b^n ℓ`` (lever arm ℓ in
-    b) and ``r = max(0, ‖p_tag − a_i‖ + n + b_NLOS)``. NLOS: inside an ``uwb_nlos`` fault
+    Three polling modes (``polling``); anchors are indexed i = 0 … n−1 in ``anchors`` order:
+
+    * ``staggered`` (default): rounds at ``rate_hz``; in round j the anchors are ranged at the
+      staggered times ``t = (j·n + i) / (n·rate)``;
+    * ``simultaneous``: rounds at ``rate_hz``; all ranges of round j carry the one time stamp
+      ``t = j / rate`` (per anchor the times still increase strictly);
+    * ``round_robin``: ``rate_hz`` is the ranging system's total rate: slot j at ``t = j / rate``
+      ranges to the next anchor (cyclically after the one served last) among those whose true
+      distance is within ``max_range_m`` at that instant, so each of k anchors in range gets
+      about ``rate/k`` ranges per second; a slot with no anchor in range gives no row.
+
+    meta.yaml ``uwb.rate_hz`` is the *nominal number of ranges per second, all anchors
+    together* (:attr:`UwbModel.nominal_rate_hz`): ``n · rate_hz`` for the two round modes,
+    ``rate_hz`` for round robin. The tag is at ``p + C_b^n ℓ`` (lever arm ℓ in
+    b) and ``r = max(0, ‖p_tag − a_i‖ + σ_i n + b_NLOS)`` with ``σ_i = noise_sigma_m ·
+    noise_factors[i]`` (factor 1 for an anchor not listed). NLOS: inside an ``uwb_nlos`` fault
     window affecting the anchor, the bias is uniform in the fault's ``bias_m``; outside, an
     anchor is NLOS at random with its probability ``nlos_probability`` — independently for
     every range, or, with ``nlos_mean_duration_s`` > 0, in episodes of exponential length
@@ -90,7 +104,7 @@ UWB (:class:`UwbModel`, seed 004 §2)
     uniform in ``nlos_bias_range_m`` or exponential with mean ``nlos_bias_mean_m`` drawn per
     range. The bias is always ≥ 0.
     Anchors whose true distance exceeds ``max_range_m``, random dropouts and ``dropout(uwb)``
-    windows give absent rows.
+    windows give absent rows. Every mode draws once per slot from each stream.
 
 Support push rams (:class:`SupportModel`)
     ``advance = true + bias + n``, one row per push.
@@ -372,6 +386,21 @@ class ImuErrorModel(BaseModel):
             else:
                 out[k] = math.hypot(va, vb)
         return ImuErrorModel(**out)
+
+
+class ImuSpecFigures(BaseModel):
+    """The datasheet figures a recording states in meta.yaml ``imu.spec`` (same keys and units).
+
+    A scenario gives them apart from its :class:`ImuErrorModel` when the unit's realized errors
+    should differ from what its datasheet promises (``imu.meta_spec``).
+    """
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    gyro_bias_deg_h: float = Field(ge=0.0, description="bias repeatability, 1σ (deg/h)")
+    gyro_arw_deg_rth: float = Field(ge=0.0, description="angle random walk (deg/√h)")
+    accel_bias_mg: float = Field(ge=0.0, description="bias repeatability, 1σ (mg)")
+    accel_vrw_mg_rthz: float = Field(ge=0.0, description="noise density (mg/√Hz)")
 
 
 def spec_for_meta(model: ImuErrorModel) -> dict[str, float]:
@@ -763,6 +792,15 @@ class MagnetometerModel(BaseModel):
     hard_iron_uT: Vec3 = (0.0, 0.0, 0.0)
     soft_iron: tuple[Vec3, Vec3, Vec3] = ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0))
     noise_sigma_uT: float = Field(default=0.1, ge=0.0)
+    meta_field_uT: float | None = Field(
+        default=None, gt=0.0, description="F stated in meta.yaml; None: the true field_uT"
+    )
+    meta_inclination_deg: float | None = Field(
+        default=None, ge=-90.0, le=90.0, description="I stated in meta.yaml; None: the true one"
+    )
+    meta_declination_deg: float | None = Field(
+        default=None, ge=-180.0, le=180.0, description="D stated in meta.yaml; None: the true one"
+    )
 
     @property
     def field_n(self) -> FloatArray:
@@ -773,12 +811,17 @@ class MagnetometerModel(BaseModel):
         )
 
     def meta(self) -> dict[str, float]:
-        """meta.yaml ``magnetometer`` section."""
+        """meta.yaml ``magnetometer`` section: the stated (``meta_*``) earth field, which is the
+        true one unless the scenario gives a surveyed/model value that differs from it."""
+
+        def stated(value: float | None, true: float) -> float:
+            return float(true if value is None else value)
+
         return {
             "rate_hz": float(self.rate_hz),
-            "declination_deg": float(self.declination_deg),
-            "field_uT": float(self.field_uT),
-            "inclination_deg": float(self.inclination_deg),
+            "declination_deg": stated(self.meta_declination_deg, self.declination_deg),
+            "field_uT": stated(self.meta_field_uT, self.field_uT),
+            "inclination_deg": stated(self.meta_inclination_deg, self.inclination_deg),
         }
 
 
@@ -859,9 +902,15 @@ class UwbModel(BaseModel):
 
     anchors: dict[str, Vec3] = Field(description="anchor id → ENU position (m)")
     tag_lever_arm_b_m: Vec3 = (0.0, 0.0, 0.0)
-    rate_hz: float = Field(default=40.0, gt=0.0, description="rounds per second")
+    rate_hz: float = Field(
+        default=40.0, gt=0.0, description="rounds per second (round_robin: ranges per second)"
+    )
+    polling: Literal["staggered", "simultaneous", "round_robin"] = "staggered"
     max_range_m: float = Field(default=100.0, gt=0.0)
     noise_sigma_m: float = Field(default=0.05, ge=0.0)
+    noise_factors: dict[str, float] = Field(
+        default_factory=dict, description="per-anchor factor on noise_sigma_m (default 1)"
+    )
     nlos_probability: float | dict[str, float] = Field(
         default=0.0, description="per-range random NLOS probability (one value or per anchor)"
     )
@@ -891,6 +940,11 @@ class UwbModel(BaseModel):
             raise ValueError(f"nlos_probability names unknown anchors {unknown}")
         if any(not 0.0 <= v <= 1.0 for v in values.values()):
             raise ValueError("nlos_probability values must lie in [0, 1]")
+        unknown = sorted(set(self.noise_factors) - set(self.anchors))
+        if unknown:
+            raise ValueError(f"noise_factors names unknown anchors {unknown}")
+        if any(not v >= 0.0 for v in self.noise_factors.values()):
+            raise ValueError("noise_factors must be >= 0")
         lo, hi = self.nlos_bias_range_m
         if not 0.0 <= lo <= hi:
             raise ValueError(f"nlos_bias_range_m must satisfy 0 <= lo <= hi, got {(lo, hi)}")
@@ -908,17 +962,30 @@ class UwbModel(BaseModel):
             return np.array([p.get(a, 0.0) for a in self.anchors], dtype=float)
         return np.full(len(self.anchors), float(p))
 
+    @property
+    def nominal_rate_hz(self) -> float:
+        """Nominal ranges per second, all anchors together (meta.yaml ``uwb.rate_hz``)."""
+        if self.polling == "round_robin":
+            return float(self.rate_hz)
+        return float(self.rate_hz) * len(self.anchors)
+
+    def noise_sigmas(self) -> FloatArray:
+        """(n_anchors,) range noise σ per anchor."""
+        return np.array(
+            [self.noise_sigma_m * self.noise_factors.get(a, 1.0) for a in self.anchors], float
+        )
+
     def meta(self) -> dict[str, Any]:
-        """meta.yaml ``uwb`` section."""
+        """meta.yaml ``uwb`` section (``rate_hz``: :attr:`nominal_rate_hz`)."""
         return {
-            "rate_hz": float(self.rate_hz),
+            "rate_hz": self.nominal_rate_hz,
             "tag_lever_arm_b_m": [float(x) for x in self.tag_lever_arm_b_m],
             "anchors": {k: [float(x) for x in v] for k, v in self.anchors.items()},
         }
 
 
 class UwbSimulator:
-    """UWB ranges, one row per anchor per round, anchors staggered within the round.
+    """UWB ranges in one of the polling modes of :class:`UwbModel` (see the module docstring).
 
     After each :meth:`apply`, ``last_nlos_bias`` and ``last_true_range`` hold the NLOS bias
     (0 when line of sight) and the geometric range of the returned rows, for diagnostics.
@@ -946,6 +1013,9 @@ class UwbSimulator:
                     f"uwb_nlos fault names unknown anchors {unknown} (known: {self._ids})"
                 )
         self._anchors = np.array([model.anchors[a] for a in self._ids], dtype=float)
+        self._sigmas = model.noise_sigmas()
+        self._rr_last = -1  # round robin: index of the anchor served last
+        self._rr_next: list[list[int]] | None = None
         self._p_nlos = model.nlos_probabilities()
         self._lever = np.asarray(model.tag_lever_arm_b_m, dtype=float)
         self.last_nlos_bias = np.zeros(0)
@@ -983,26 +1053,71 @@ class UwbSimulator:
         self._episode[k] = (state, t_switch)
         return out
 
+    def _round_robin(self, tag: FloatArray) -> tuple[NDArray[np.int64], NDArray[np.bool_]]:
+        """Anchor served in each round-robin slot (the next in range after the last served, in
+        index order, cyclically) and whether any anchor was in range."""
+        n_a = len(self._ids)
+        dist = np.sqrt(((tag[:, None, :] - self._anchors[None, :, :]) ** 2).sum(axis=2))
+        in_range = dist <= self.model.max_range_m
+        if n_a > 10:  # too many anchors for the lookup table: a plain loop
+            out = np.full(tag.shape[0], -1, dtype=np.int64)
+            last = self._rr_last
+            for i, row in enumerate(in_range.tolist()):
+                for j in range(1, n_a + 1):
+                    k = (last + j) % n_a
+                    if row[k]:
+                        out[i] = last = k
+                        break
+            self._rr_last = last
+            return np.where(out >= 0, out, 0), out >= 0
+        if self._rr_next is None:
+            # table[last + 1][mask]: next anchor after ``last`` among the set bits of ``mask``
+            table = []
+            for last in range(-1, n_a):
+                order = [(last + 1 + i) % n_a for i in range(n_a)]
+                row = [-1] * (1 << n_a)
+                for mask in range(1, 1 << n_a):
+                    row[mask] = next(k for k in order if mask >> k & 1)
+                table.append(row)
+            self._rr_next = table
+        masks = (in_range << np.arange(n_a)).sum(axis=1).tolist()
+        out = np.empty(len(masks), dtype=np.int64)
+        last = self._rr_last
+        table = self._rr_next
+        for i, mask in enumerate(masks):
+            k = table[last + 1][mask]
+            out[i] = k
+            if k >= 0:
+                last = k
+        self._rr_last = last
+        valid = out >= 0
+        return np.where(valid, out, 0), valid
+
     def apply(self, truth: TruthLike) -> tuple[FloatArray, NDArray[np.int64], FloatArray]:
         """UWB rows for one truth chunk.
 
         Returns
         -------
         t, anchor_index, range
-            (M,) times (s, strictly increasing), anchor indices into ``model.anchor_ids``, and
-            ranges (m, ≥ 0) of the kept rows.
+            (M,) times (s; strictly increasing, non-decreasing for ``simultaneous`` polling),
+            anchor indices into ``model.anchor_ids``, and ranges (m, ≥ 0) of the kept rows.
         """
         tp, pp, cp, first = self._tail.extend(truth)
         n_a = len(self._ids)
-        slot_rate = n_a * self.model.rate_hz
+        polling = self.model.polling
+        slot_rate = self.model.rate_hz if polling != "staggered" else n_a * self.model.rate_hz
         s = _grid(tp, first, self._next_s, slot_rate)
         if s.size == 0:
             self.last_nlos_bias, self.last_true_range = np.zeros(0), np.zeros(0)
             return np.zeros(0), np.zeros(0, dtype=np.int64), np.zeros(0)
         self._next_s = int(s[-1]) + 1
-        ts = s / slot_rate
-        idx = (s % n_a).astype(np.int64)
-        ns = s.size
+        if polling == "simultaneous":  # s counts rounds: one slot per anchor, one time stamp
+            ts = np.repeat(s / slot_rate, n_a)
+            idx = np.tile(np.arange(n_a, dtype=np.int64), s.size)
+        else:
+            ts = s / slot_rate
+            idx = (s % n_a).astype(np.int64)
+        ns = ts.size
         # One draw per slot from every stream, used or not.
         noise = self._s_noise.standard_normal(ns)
         u_drop = self._s_drop.random(ns)
@@ -1012,6 +1127,9 @@ class UwbSimulator:
         pos = _interp(ts, tp, pp)
         c = _interp(ts, tp, cp.reshape(-1, 9)).reshape(-1, 3, 3)
         tag = pos + _batch_mat_vec(c, self._lever)
+        valid = np.ones(ns, dtype=bool)
+        if polling == "round_robin":
+            idx, valid = self._round_robin(tag)
         true_range = _norm_rows(tag - self._anchors[idx])
 
         m = self.model
@@ -1023,7 +1141,7 @@ class UwbSimulator:
         if m.nlos_mean_duration_s > 0:
             nlos = np.zeros(ns, dtype=bool)
             for k in range(len(self._ids)):
-                sel = idx == k
+                sel = (idx == k) & valid
                 nlos[sel] = self._episodes(k, ts[sel])
         else:
             nlos = u_event < self._p_nlos[idx]
@@ -1034,9 +1152,13 @@ class UwbSimulator:
             b = bias[sel]
             b[act] = flo[act] + u_bias[sel][act] * (fhi[act] - flo[act])
             bias[sel] = b
-        rng_meas = np.maximum(true_range + m.noise_sigma_m * noise + bias, 0.0)
+        sigma: float | FloatArray = m.noise_sigma_m
+        if m.noise_factors:
+            sigma = self._sigmas[idx]
+        rng_meas = np.maximum(true_range + sigma * noise + bias, 0.0)
         keep = (
-            (true_range <= m.max_range_m)
+            valid
+            & (true_range <= m.max_range_m)
             & (u_drop >= m.dropout_probability)
             & present_mask(self.faults, "uwb", ts)
         )

@@ -18,6 +18,11 @@ IMU is mounted on it with the odometer section's residual mounting angles δα
 (``C_b^m = exp(−δα×)``), so that the truth attitude, the IMU and the motion constraint are the
 IMU's and the mounting angles are observable, as in seed 000.
 
+A stream file is written whenever the scenario has the sensor, even when no row falls inside
+the recording: a support section whose recording ends before the first AFC push gives a
+header-only ``support.csv`` (the sensor was logging and saw no push; the reader accepts it as
+a stream of zero rows), which is what the presets have always written for short runs.
+
 ``meta.yaml`` holds the *perturbed* initial state (truth + a seeded draw from the scenario's
 1-σ, unless ``initial.perturb`` is false) with that σ, so that a filter starts with a realistic
 error; the true initial state, the injected faults (``{type, t_start, t_end, …}``), the AFC push
@@ -26,6 +31,7 @@ events, the realized IMU errors, the scenario name and the seed are under ``extr
 
 from __future__ import annotations
 
+import copy
 import math
 import time
 from collections.abc import Callable, Sequence
@@ -42,6 +48,7 @@ from fusion.sim.scenario import (
     Scenario,
     apply_overrides,
     list_presets,
+    parse_override,
     scenario_from_mapping,
 )
 from fusion.sim.scenario import (
@@ -58,6 +65,7 @@ from fusion.sim.sensors import (
     spec_for_meta,
 )
 from fusion.sim.trajectory import Trajectory, TruthChunk
+from fusion.sim.worlds import FAMILIES, family_world
 
 STREAM_KEYS = {
     "trajectory": 1,
@@ -77,14 +85,32 @@ def stream_rng(seed: int, name: str) -> np.random.Generator:
     return np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(STREAM_KEYS[name],)))
 
 
-def load_scenario(name_or_path: str | Path, overrides: Sequence[str] = ()) -> Scenario:
-    """Load a preset by name or a scenario YAML file and apply ``key.sub=value`` overrides."""
+def load_scenario(
+    name_or_path: str | Path, overrides: Sequence[str] = (), *, seed: int = 0
+) -> Scenario:
+    """Load a preset by name, a scenario YAML file or the world of a random family (drawn from
+    ``seed``, :data:`fusion.sim.worlds.FAMILIES`) and apply ``key.sub=value`` overrides.
+
+    An override of ``duration_s`` on a family is passed to the draw, so that the world plans
+    enough cutting cycles for that length.
+    """
+    if isinstance(name_or_path, str) and name_or_path in FAMILIES:
+        duration: float | None = None
+        for text in overrides:
+            path, value = parse_override(text)
+            if path == ["duration_s"] and isinstance(value, int | float):
+                duration = float(value)
+        world = family_world(name_or_path, seed, duration_s=duration)
+        if not overrides:
+            return world
+        data = world.model_dump(mode="json")
+        return scenario_from_mapping(apply_overrides(data, overrides), name_or_path)
     return _load_scenario(name_or_path, overrides)
 
 
 def list_scenarios() -> list[tuple[str, str]]:
-    """``(name, one-line description)`` of the preset scenarios."""
-    return list_presets()
+    """``(name, one-line description)`` of the preset scenarios, then the random families."""
+    return list_presets() + list(FAMILIES.items())
 
 
 class _CsvAppender:
@@ -111,13 +137,13 @@ class _CsvAppender:
         self._fh.close()
 
 
-def _as_scenario(scenario: Scenario | str | Path, overrides: Sequence[str]) -> Scenario:
+def _as_scenario(scenario: Scenario | str | Path, overrides: Sequence[str], seed: int) -> Scenario:
     if isinstance(scenario, Scenario):
         if not overrides:
             return scenario
         data = scenario.model_dump(mode="json")
         return scenario_from_mapping(apply_overrides(data, overrides), scenario.name)
-    return load_scenario(scenario, overrides)
+    return load_scenario(scenario, overrides, seed=seed)
 
 
 def _uwb_model(sc: Scenario, traj: Trajectory) -> UwbModel | None:
@@ -155,7 +181,9 @@ def simulate(
     Parameters
     ----------
     scenario
-        A :class:`Scenario`, a preset name or a YAML path.
+        A :class:`Scenario`, a preset name, a YAML path or a random family
+        (``longwall-random``…, :data:`fusion.sim.worlds.FAMILIES`: the world drawn from
+        ``seed``).
     out_dir
         Output recording directory (created; files of this run are overwritten).
     seed
@@ -170,7 +198,7 @@ def simulate(
     Path
         The recording directory.
     """
-    sc = _as_scenario(scenario, overrides)
+    sc = _as_scenario(scenario, overrides, seed)
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     for stem in rec.STREAM_COLUMNS:  # stale stream files of an earlier run
@@ -325,7 +353,14 @@ def _meta(
                 "attitude_deg": list(sig.attitude_deg),
             },
         },
-        "imu": {"rate_hz": sc.imu.rate_hz, "spec": spec_for_meta(sc.imu.error_model)},
+        "imu": {
+            "rate_hz": sc.imu.rate_hz,
+            "spec": (
+                spec_for_meta(sc.imu.error_model)
+                if sc.imu.meta_spec is None
+                else sc.imu.meta_spec.model_dump()
+            ),
+        },
     }
     if sc.odometer is not None:
         data["odometer"] = sc.odometer.meta()
@@ -357,4 +392,8 @@ def _meta(
             {"t": round(e.t, 6), "advance_m": e.advance, "cycle": e.cycle} for e in traj.push_events
         ],
     }
+    if sc.extra:
+        data["extra"].update(copy.deepcopy(sc.extra))
+        if "world" in sc.extra:  # a drawn world: the whole scenario, to reproduce the run
+            data["extra"]["world"]["scenario"] = sc.model_dump(mode="json", exclude={"extra"})
     return rec.RecordingMeta.model_validate(data)

@@ -55,13 +55,33 @@ along the bend of the AFC (one web d over L_bend) into the new web plus an overr
 the end is pushed straight (an AFC push event of d for the support sensor), cut back to the
 end, stop (all cycle 0, as "the shearer processing the end coal" in seed 000 §4) → pass 2 in
 the other direction on the line shifted by d (cycle 2) → … → static end.
+
+That is the ``bidirectional`` pattern (one run per cycle). ``unidirectional`` cycles are a cut
+and a cleaning run back (``cut, clean``), ``three_pass`` cycles a cut, a cleaning run back and
+a return run (``cut, clean, return``); every run reverses the previous one's direction. The
+manoeuvre with the push follows run ``face.push_after_run`` of each cycle (default its last);
+the other runs end with a plain stop. ``truth.csv`` ``cycle`` is the cutting-cycle index on
+every run of the cycle (cut, cleaning and return runs alike, re-cuts included) and 0 at the
+static start and end and during the face-end manoeuvres. Cleaning and return runs draw their
+speeds from ``motion.clean_speed_mpm`` and scale the vibration envelope by
+``vibration.clean_scale``. A re-cut (``face.recut``) splits a run into forward, back-up and
+forward drives with stops between them. The face ends may move along the face from cycle to
+cycle (``face.end_skew_deg``, ``face.end_jitter_m``): a run then goes from where the shearer
+stands to the end of the current cycle and line, and the manoeuvre returns to the new line's
+end. Each push may also change the AFC's straightness (``face.line_deviation``): the lines
+carry their own deviation terms, blended along the bend like the advance offset.
+
+Random streams: stops, speeds, dwells and the advance jitter come from the motion stream, the
+floor and waviness from the geometry stream, as they always have; the face ends, the line
+deviations and the re-cuts draw from three further streams of their own, so that a scenario
+that does not use them draws exactly the numbers it drew before they existed.
 """
 
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import Protocol
+from typing import Any, Protocol
 
 import numpy as np
 from numpy.typing import NDArray
@@ -268,19 +288,61 @@ class AfcLine:
     wav_c: Array
     wav_phase: Array
     lap_length: float | None = None
+    dev0: Deviation | None = None
+    """Line deviation of the line at ``a0`` (:class:`~fusion.sim.scenario.LineDeviation`)."""
+    dev1: Deviation | None = None
+    """Line deviation of the line at ``a1``, blended in along the bend like the offset."""
 
     def plan(self, s: Array) -> tuple[Jet, Jet]:
         """See :class:`LegGeometry`."""
         sj = Jet(s, np.ones_like(s), np.zeros_like(s))
+        blend: Jet | None = None
         if self.s1 != self.s0 and self.a1 != self.a0:
-            a = smoothstep5((sj - self.s0) * (1.0 / (self.s1 - self.s0))) * (self.a1 - self.a0)
+            blend = smoothstep5((sj - self.s0) * (1.0 / (self.s1 - self.s0)))
+            a = blend * (self.a1 - self.a0)
             a = a + self.a0
         else:
             a = Jet.const(self.a0, s)
         eta = a
         for amp, k, c, ph in zip(self.wav_amp, self.wav_k, self.wav_c, self.wav_phase, strict=True):
             eta = eta + amp * jsin(sj * k + a * c + ph)
+        if self.dev0 is not None:
+            d0 = self.dev0.jet(sj)
+            if blend is not None and self.dev1 is not None:
+                d0 = d0 + blend * (self.dev1.jet(sj) - d0)
+            eta = eta + d0
         return sj, eta
+
+
+@dataclass(frozen=True)
+class Deviation:
+    """A smooth lateral deviation ``Σ_i C_i sin(k_i s + φ_i)`` of one AFC line (m)."""
+
+    amp: Array
+    k: Array
+    phase: Array
+
+    def jet(self, sj: Jet) -> Jet:
+        """The deviation as a jet in s."""
+        out = Jet.const(0.0, sj.v)
+        for c, k, ph in zip(self.amp, self.k, self.phase, strict=True):
+            out = out + c * jsin(sj * k + ph)
+        return out
+
+    def next(
+        self, persistence: float, sigma: float, wavelengths: tuple[float, float], n: int, rng: Any
+    ) -> Deviation:
+        """``ρ δ + ε`` with a new draw ε (terms whose amplitude fell below 10 µm are dropped)."""
+        c = np.full(n, sigma * math.sqrt(2.0 / n))
+        k = 2.0 * np.pi / rng.uniform(wavelengths[0], wavelengths[1], size=n)
+        ph = rng.uniform(0.0, 2.0 * np.pi, size=n)
+        old = self.amp * persistence
+        keep = np.abs(old) >= 1e-5
+        return Deviation(
+            np.concatenate([old[keep], c]),
+            np.concatenate([self.k[keep], k]),
+            np.concatenate([self.phase[keep], ph]),
+        )
 
 
 @dataclass(frozen=True)
@@ -365,6 +427,8 @@ class _Schedule:
     t: float = 0.0
     s: float = 0.0
     leg: int = 0
+    env_scale: float = 1.0
+    """Factor on the vibration envelope of the segments added (cleaning runs: reduced)."""
     rows: list[tuple[float, float, float, float, float, float, float, int, int]] = field(
         default_factory=list
     )
@@ -372,6 +436,8 @@ class _Schedule:
     def _add(self, duration: float, v0: float, dv: float, e0: float, de: float, cycle: int) -> None:
         if duration <= 0.0:
             return
+        if self.env_scale != 1.0:
+            e0, de = e0 * self.env_scale, de * self.env_scale
         self.rows.append((self.t, duration, self.s, v0, dv, e0, de, self.leg, cycle))
         self.t += duration
         self.s += v0 * duration + 0.5 * dv * duration
@@ -540,6 +606,9 @@ class Trajectory:
     def __init__(self, scenario: Scenario, rng: np.random.Generator) -> None:
         self.scenario = scenario
         r_geom, r_motion, r_vib = rng.spawn(3)
+        # the patterns, ends, line deviations and re-cuts draw from streams of their own, so
+        # that a scenario without them draws exactly what it drew before they existed
+        (r_face,) = rng.spawn(1)
         motion = scenario.motion
         sched = _Schedule(motion.accel_mps2, motion.min_ramp_s)
         self.legs: list[LegGeometry] = []
@@ -547,7 +616,7 @@ class Trajectory:
         if scenario.face is not None:
             self.azimuth = math.radians(scenario.face.azimuth_deg)
             self.floor = FloorSurface.from_config(scenario.face.floor, r_geom)
-            self._plan_face(scenario, scenario.face, sched, r_geom, r_motion)
+            self._plan_face(scenario, scenario.face, sched, r_geom, r_motion, r_face)
         else:
             assert scenario.track is not None
             self.azimuth = math.radians(scenario.track.azimuth_deg)
@@ -584,6 +653,7 @@ class Trajectory:
         sched: _Schedule,
         r_geom: np.random.Generator,
         r_motion: np.random.Generator,
+        r_face: np.random.Generator,
     ) -> None:
         wav = face.waviness
         n = len(wav.wavelengths_m)
@@ -591,55 +661,144 @@ class Trajectory:
         k = 2.0 * np.pi / np.asarray(wav.wavelengths_m, dtype=float)
         c = r_geom.choice([-1.0, 1.0], size=n) / wav.decorrelation_m
         ph = r_geom.uniform(0.0, 2.0 * np.pi, size=n)
+        r_ends, r_dev, r_recut = r_face.spawn(3)
 
-        def line(a0: float, a1: float = 0.0, s0: float = 0.0, s1: float = 0.0) -> int:
-            self.legs.append(AfcLine(a0, a1 if s1 != s0 else a0, s0, s1, amp, k, c, ph))
+        dev_cfg = face.line_deviation
+        deviation: Deviation | None = None
+        if dev_cfg.sigma_m > 0:
+            deviation = Deviation(np.zeros(0), np.zeros(0), np.zeros(0))
+
+        def next_deviation() -> Deviation | None:
+            if deviation is None:
+                return None
+            return deviation.next(
+                dev_cfg.persistence,
+                dev_cfg.sigma_m,
+                dev_cfg.wavelengths_m,
+                dev_cfg.components,
+                r_dev,
+            )
+
+        def line(
+            a0: float,
+            a1: float = 0.0,
+            s0: float = 0.0,
+            s1: float = 0.0,
+            dev1: Deviation | None = None,
+        ) -> int:
+            self.legs.append(
+                AfcLine(a0, a1 if s1 != s0 else a0, s0, s1, amp, k, c, ph, None, deviation, dev1)
+            )
             return len(self.legs) - 1
 
         m = sc.motion
         cut = (m.speed_mpm[0] / 60.0, m.speed_mpm[1] / 60.0)
+        clean_mpm = m.clean_speed_mpm if m.clean_speed_mpm is not None else m.speed_mpm
+        clean = (clean_mpm[0] / 60.0, clean_mpm[1] / 60.0)
         man = face.maneuver_speed_mpm / 60.0
         length = face.length_m
+        runs = face.runs
+        push_after = face.push_after_run if face.push_after_run is not None else len(runs) - 1
+        fixed_ends = face.end_skew_deg == (0.0, 0.0) and face.end_jitter_m == 0.0
+        tan_skew = [math.tan(math.radians(x)) for x in face.end_skew_deg]
+        jitter = np.zeros((face.cycles + 2, 2))
+        if face.end_jitter_m > 0:
+            jitter[2:] = r_ends.uniform(-face.end_jitter_m, face.end_jitter_m, (face.cycles, 2))
+
+        def end_at(sign: float, a: float, cycle: int) -> float:
+            """ξ of the face end that a run in direction ``sign`` reaches (line offset a)."""
+            if sign > 0:
+                return length + a * tan_skew[1] + float(jitter[cycle, 1])
+            return a * tan_skew[0] + float(jitter[cycle, 0])
+
         sched.leg = line(0.0)
         sched.s = 0.0
         sched.dwell(sc.static_start_s, 0)
         a_k, sign = 0.0, 1.0
         self.face_lines: list[float] = [0.0]
         for cyc in range(1, face.cycles + 1):
-            sched.leg = line(a_k)
+            for run, kind in enumerate(runs):
+                sched.leg = line(a_k)
+                run_length = length if fixed_ends else sign * (end_at(sign, a_k, cyc) - sched.s)
+                sched.env_scale = 1.0 if kind == "cut" else m.vibration.clean_scale
+                self._run(
+                    sched, run_length, sign, cut if kind == "cut" else clean, r_motion, r_recut, cyc
+                )
+                sched.env_scale = 1.0
+                if cyc == face.cycles and run == len(runs) - 1:
+                    break
+                if run != push_after:
+                    sched.dwell(r_motion.uniform(*face.end_dwell_s), 0)
+                    sign = -sign
+                    continue
+                d = face.advance_m + (
+                    face.advance_jitter_m * float(r_motion.standard_normal())
+                    if face.advance_jitter_m > 0
+                    else 0.0
+                )
+                a_next = a_k + d
+                s_end = (length if sign > 0 else 0.0) if fixed_ends else sched.s
+                bend = min(face.bend_length_m, 0.5 * length)
+                travel = min(bend + face.sump_overrun_m, 0.9 * length)
+                sched.dwell(r_motion.uniform(*face.end_dwell_s), 0)
+                new_dev = next_deviation()
+                sched.leg = line(a_k, a_next, s_end, s_end - sign * bend, new_dev)
+                sched.drive(travel, -sign, (man, man), r_motion, 0)
+                push = r_motion.uniform(*face.push_dwell_s)
+                sched.dwell(push, 0)
+                self.push_events.append(PushEvent(sched.t - 0.5 * push, d, cyc))
+                deviation = new_dev
+                sched.leg = line(a_next)
+                back = travel
+                if not fixed_ends:  # to the end of the new line (the next run's start)
+                    next_cycle = cyc + 1 if run == len(runs) - 1 else cyc
+                    back = sign * (end_at(sign, a_next, next_cycle) - sched.s)
+                sched.drive(back, sign, (man, man), r_motion, 0)
+                sched.dwell(r_motion.uniform(*face.end_dwell_s), 0)
+                a_k, sign = a_next, -sign
+                self.face_lines.append(a_k)
+
+    def _run(
+        self,
+        sched: _Schedule,
+        length: float,
+        sign: float,
+        speed: tuple[float, float],
+        r_motion: np.random.Generator,
+        r_recut: np.random.Generator,
+        cycle: int,
+    ) -> None:
+        """One face traversal from rest to rest, with its random stops, speed changes and (with
+        the scenario's re-cut probability) a re-cut: back up mid-face, then go on."""
+        m = self.scenario.motion
+        recut = self.scenario.face.recut if self.scenario.face is not None else None
+
+        def drive(dist: float, direction: float) -> None:
             sched.drive(
-                length,
-                sign,
-                cut,
+                dist,
+                direction,
+                speed,
                 r_motion,
-                cyc,
+                cycle,
                 m.stops.rate_per_hour,
                 m.stops.duration_s,
                 m.speed_changes_per_hour,
                 m.stops.count,
             )
-            if cyc == face.cycles:
-                break
-            d = face.advance_m + (
-                face.advance_jitter_m * float(r_motion.standard_normal())
-                if face.advance_jitter_m > 0
-                else 0.0
-            )
-            a_next = a_k + d
-            s_end = length if sign > 0 else 0.0
-            bend = min(face.bend_length_m, 0.5 * length)
-            travel = min(bend + face.sump_overrun_m, 0.9 * length)
-            sched.dwell(r_motion.uniform(*face.end_dwell_s), 0)
-            sched.leg = line(a_k, a_next, s_end, s_end - sign * bend)
-            sched.drive(travel, -sign, (man, man), r_motion, 0)
-            push = r_motion.uniform(*face.push_dwell_s)
-            sched.dwell(push, 0)
-            self.push_events.append(PushEvent(sched.t - 0.5 * push, d, cyc))
-            sched.leg = line(a_next)
-            sched.drive(travel, sign, (man, man), r_motion, 0)
-            sched.dwell(r_motion.uniform(*face.end_dwell_s), 0)
-            a_k, sign = a_next, -sign
-            self.face_lines.append(a_k)
+
+        if recut is None or recut.probability <= 0 or r_recut.random() >= recut.probability:
+            drive(length, sign)
+            return
+        start = sched.s
+        at = r_recut.uniform(0.2, 0.8) * length
+        back = min(r_recut.uniform(*recut.distance_m), 0.9 * at)
+        dwell = r_recut.uniform(*recut.dwell_s, size=2)
+        drive(at, sign)
+        sched.dwell(float(dwell[0]), cycle)
+        drive(back, -sign)
+        sched.dwell(float(dwell[1]), cycle)
+        drive(length - at + back, sign)
+        sched.s = start + sign * length
 
     def _plan_track(
         self, sc: Scenario, track: Track, sched: _Schedule, r_motion: np.random.Generator

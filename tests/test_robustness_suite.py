@@ -1,0 +1,109 @@
+"""The robustness suites: failures are counted per run, the tables aggregate, the CI smoke run."""
+
+from __future__ import annotations
+
+import math
+import time
+
+import pytest
+
+from benchmarks.robustness import (
+    SMOKE_CONFIGS,
+    execute,
+    ranges_preamble,
+    robustness_configs,
+    robustness_tables,
+    smoke_tables,
+    smoke_tasks,
+)
+from benchmarks.runner import Method, Task, collect, run_tasks
+from benchmarks.suites import SUITES
+from benchmarks.tables import Column, RowSpec, TableSpec, build_table, to_markdown
+
+
+def test_a_failing_run_is_counted_and_the_others_go_on() -> None:
+    task = Task(
+        suite="robustness-smoke",
+        group="worlds",
+        scenario="longwall-random-short",
+        seed=1,
+        methods=(
+            Method("missing", "no_such_config"),
+            Method("broken", "sins_only", ("filter.covariance_step_s=-1",)),
+            Method("sins_only", "sins_only"),
+        ),
+        scenario_overrides=("duration_s=60",),
+        executor="robustness",
+    )
+    rows = {r["method"]: r for r in execute(task).rows}
+    assert rows["missing"]["failed"] == 1.0 and "no_such_config" in rows["missing"]["failure"]
+    assert rows["broken"]["failed"] == 1.0
+    ok = rows["sins_only"]
+    assert ok["failed"] == 0.0 and math.isfinite(ok["horizontal_rms"])
+    assert ok["nz_e_count"] > 0 and ok["duration_h"] == pytest.approx(60 / 3600, rel=0.01)
+
+
+def test_aggregates() -> None:
+    rows = [
+        {"group": "g", "method": "m", "solution": "forward", "x": 1.0, "failed": 0.0,
+         "z_sumsq": 4.0, "z_count": 1.0, "iso": 1.0, "duration_h": 0.5},
+        {"group": "g", "method": "m", "solution": "forward", "x": 3.0, "failed": 1.0,
+         "z_sumsq": 14.0, "z_count": 3.0, "iso": float("nan"), "duration_h": 2.0},
+        {"group": "g", "method": "m", "solution": "forward", "x": 8.0, "failed": 0.0,
+         "iso": 2.0, "duration_h": 1.5},
+    ]  # fmt: skip
+    spec = TableSpec(
+        "t",
+        "t",
+        (RowSpec("m", "g", "m"),),
+        (
+            Column("x", "median", agg="median"),
+            Column("x", "worst", agg="max"),
+            Column("failed", "failed", 0, agg="sum"),
+            Column("z", "pooled", agg="pooled_rms"),
+            Column("iso", "per hour", agg="per_hour"),
+            Column("x", "mean"),
+        ),
+    )
+    cells = build_table(spec, rows).cells[0]
+    assert [c.mean for c in cells[:5]] == [3.0, 8.0, 1.0, math.sqrt(18.0 / 4.0), 3.0 / 2.0]
+    text = to_markdown(build_table(spec, rows))
+    assert "| m | 3 | 3.00 | 8.00 | 1 | 2.12 | 1.50 | 4.00 ± 2.94 |" in text
+
+
+def test_suites_are_registered_with_their_ranges() -> None:
+    assert SUITES["robustness"].default_runs == 20 and SUITES["robustness"].in_results
+    assert not SUITES["robustness-smoke"].in_results
+    configs = robustness_configs()
+    assert "full_afkf" in configs and "sins_uwb" in configs
+    assert not any(c.startswith("real_") for c in configs)
+    assert set(SMOKE_CONFIGS) <= set(configs)
+    assert {t.name for t in robustness_tables()} == {"robustness", "robustness_ratio"}
+    assert [t.name for t in smoke_tables()] == ["robustness"]
+    text = ranges_preamble()
+    assert "`face_length_m` | 60 – 300" in text and "`sins_uwb`" in text
+
+
+@pytest.mark.slow
+@pytest.mark.xfail(
+    strict=True,
+    reason="filter side, found by this suite: full_afkf_rts's online RTS returns NaN smoothed"
+    " position sigmas (negative covariance diagonal) over the static start of worlds that end"
+    " before a face end, e.g. seeds 4, 8, 16; remove this marker when they are finite",
+)
+def test_smoke_suite_completes_without_a_failed_run() -> None:
+    """20 short random worlds, the smoke configurations: every run ends with a finite solution.
+
+    Accuracy is not asserted here (the filter's figures on these worlds are the suite's
+    output, not a property of the simulator)."""
+    tasks = smoke_tasks(20, ())
+    start = time.perf_counter()
+    merged = collect(run_tasks(tasks, jobs=2))
+    seconds = time.perf_counter() - start
+    forward = [r for r in merged.rows if r["solution"] == "forward"]
+    failed = [(r["seed"], r["method"], r.get("failure")) for r in forward if r.get("failed")]
+    assert failed == [], failed
+    assert {(r["seed"], r["method"]) for r in forward} == {
+        (s, c) for s in range(20) for c in SMOKE_CONFIGS
+    }
+    print(f"smoke suite: {seconds:.0f} s")
