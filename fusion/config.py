@@ -161,6 +161,15 @@ class FilterOptions(_Strict):
         description="low-pass of the specific force in F against vibration (0: step mean;"
         " fusion.error_model.SpecificForceFilter)",
     )
+    lock_window_s: float = Field(
+        3.0,
+        gt=0,
+        description="a gated plugin whose every update over this window was rejected has lost"
+        " lock: the filter is re-initialized from it alone where it can (fusion.lock)",
+    )
+    lock_min_updates: int = Field(
+        10, ge=1, description="updates the lock window must hold before a lost lock counts"
+    )
     observable_force: bool = Field(
         True,
         description="shrink the horizontal specific force in F by its own uncertainty, so that a"

@@ -23,11 +23,13 @@ sets of the same layout. Φ and Q_d are always computed once over the full layou
 from __future__ import annotations
 
 import logging
+import math
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 
 import numpy as np
+import scipy.linalg
 from numpy.typing import NDArray
 
 from fusion import attitude
@@ -52,6 +54,7 @@ from fusion.imu_gaps import GapBridge, bridge_imu_gaps
 from fusion.innovations import InnovationLog
 from fusion.jumps import JumpDetector, JumpState, jump_states
 from fusion.kalman import KalmanFilter
+from fusion.lock import LOST_LOCK, REACQUIRE, LockMonitor
 from fusion.memory import release_freed_memory
 from fusion.plugin import MeasurementContext, Plugin, create_plugin
 from fusion.recording import ImuSpec, Recording
@@ -277,6 +280,10 @@ class Engine:
             imu.t, imu.gyro, imu.accel, self.initial_state(), coning_sculling=cfg.coning_sculling
         )
         bank = self.filter_bank()
+        self._locks = [
+            LockMonitor(cfg.lock_window_s, cfg.lock_min_updates) if gate is not None else None
+            for gate in self.gates
+        ]
         states = jump_states(self.layout)
         jumps = (
             JumpDetector(self.layout, states, cfg.jump_detection, self._tell_owner)
@@ -525,12 +532,43 @@ class Engine:
         signature = jumps.innovation_signature(bank, src, m.H) if jumps is not None else None
         res = kf.update(m.z, m.H, m.R, self.gates[src], shared, correlated)
         bank.record(src, t, res, m.suspect)
+        lock = self._locks[src]
+        if lock is not None and lock.observe(t, res.accepted):
+            self._reacquire(src, t, sins, bank, lock)
         if jumps is not None and signature is not None:
             events = [jumps.observe(t, bank, src, signature, res)]
             events += [jumps.rest(t, bank, name) for name in m.at_rest]
             bank.faults.extend(e for e in events if e is not None)
         logs[plugin.name].append(t, res, m.suspect)
         return res.accepted
+
+    def _reacquire(
+        self, src: int, t: float, sins: Strapdown, bank: FilterBank, lock: LockMonitor
+    ) -> None:
+        """A plugin lost lock (:mod:`fusion.lock`): move the SINS to where the plugin alone puts
+        it, restart position and velocity there, and report it; or report the lost lock."""
+        plugin = self.plugins[src]
+        layout, kf = bank.filter_of(src)
+        ctx = self._context(sins, layout, kf, t, bank.shared_covariance(src))
+        fix = plugin.reacquire(t, ctx)
+        window = self.config.filter.lock_window_s
+        lock.reset()
+        if fix is None:
+            reason = f"every update of {plugin.name} rejected for {window:g} s"
+            bank.faults.append(FaultEvent(t, plugin.name, math.nan, math.nan, LOST_LOCK, reason))
+            return
+        rot = ctx.rotation_to_local
+        error = rot @ (ctx.position_enu - fix.position_enu)  # δp of the nominal, local metres
+        velocity_error = ctx.velocity - rot @ fix.velocity_enu
+        sins.correct(velocity_error, np.zeros(3), error, np.zeros(3), np.zeros(3))
+        covariance = scipy.linalg.block_diag(
+            rot @ fix.velocity_covariance @ rot.T, rot @ fix.covariance @ rot.T
+        )
+        bank.restart_common(np.r_[0:3, 6:9], covariance)
+        reason = f"{plugin.name} alone moved the position by {np.linalg.norm(error):.3g} m"
+        bank.faults.append(
+            FaultEvent(t, plugin.name, float(np.linalg.norm(error)), math.nan, REACQUIRE, reason)
+        )
 
     def _store(self, src: int, index: int, t: float, sins: Strapdown, bank: FilterBank) -> None:
         """A plugin's store epoch: the filter takes on the stored error's covariances."""

@@ -475,6 +475,14 @@ class FederatedFilter:
         for f, beta in zip(members, shares, strict=True):
             f.beta = float(beta)
 
+    def restart_common(self, indices: NDArray[np.intp], covariance: NDArray[np.float64]) -> None:
+        """Restart common states in every local (at its share: P/β_i) and the master."""
+        for f in self.locals:
+            f.kf.restart_block(indices, covariance / f.beta)
+        if self.master is not None:
+            self.master.restart_block(indices, covariance / self.options.master_share)
+        self._fused = None
+
     def common_covariance(self) -> NDArray[np.float64]:
         """The fused covariance of the common states (eq. 35)."""
         return self._global()[1]

@@ -86,6 +86,10 @@ class FilterBank(Protocol):
     def common_covariance(self) -> NDArray[np.float64]:
         """Current 15×15 covariance of the common SINS error states (read-only)."""
 
+    def restart_common(self, indices: NDArray[np.intp], covariance: NDArray[np.float64]) -> None:
+        """Restart common states ``indices`` (the SINS has just been moved to a new estimate of
+        them) at zero with ``covariance``, uncorrelated with everything else."""
+
     @property
     def smoothing_dim(self) -> int:
         """Dimension of the state the smoother works on."""
@@ -173,6 +177,10 @@ class CentralizedFilter:
     def common_covariance(self) -> NDArray[np.float64]:
         """The common block of P (a view)."""
         return self.kf.P[COMMON, COMMON]
+
+    def restart_common(self, indices: NDArray[np.intp], covariance: NDArray[np.float64]) -> None:
+        """See :class:`FilterBank`."""
+        self.kf.restart_block(indices, covariance)
 
     @property
     def smoothing_dim(self) -> int:

@@ -299,6 +299,15 @@ class KalmanFilter:
         self.P[index, index] = variance
         self.columns[index, :] = 0.0
 
+    def restart_block(self, indices: NDArray[np.intp], covariance: NDArray[np.float64]) -> None:
+        """Restart states ``indices`` at zero with ``covariance``, uncorrelated with the rest
+        (:meth:`restart` for a block)."""
+        self.x[indices] = 0.0
+        self.P[indices, :] = 0.0
+        self.P[:, indices] = 0.0
+        self.P[np.ix_(indices, indices)] = covariance
+        self.columns[indices, :] = 0.0
+
     def condition(self, index: int, value: float) -> None:
         """Condition on state ``index`` being exactly ``value``: an update with H = e_indexᵀ and
         R = 10⁻¹² P_jj, so the correlated states follow."""

@@ -36,6 +36,7 @@ from fusion.config import FusionConfig
 from fusion.earth import LocalFrame
 from fusion.error_model import StateBlock, StateLayout
 from fusion.kalman import CorrelatedNoise
+from fusion.lock import Reacquisition
 from fusion.recording import Recording
 from fusion.solution import Solution
 from fusion.validation import dotted, error_lines
@@ -230,6 +231,12 @@ class Plugin(ABC):
         round and the feedback of that instant, so ``ctx`` holds the posterior (fused, in a
         federated filter); the plugin keeps what it needs and returns the error it stored
         (default: nothing)."""
+        return None
+
+    def reacquire(self, t: float, ctx: MeasurementContext) -> Reacquisition | None:
+        """Where the IMU is at ``t`` from this sensor's readings alone, for a filter whose every
+        update of this plugin was rejected (:mod:`fusion.lock`); default: the plugin cannot
+        say (the lost lock is only reported)."""
         return None
 
     def standalone_solution(self) -> Solution:

@@ -36,10 +36,13 @@ Tightly coupled ranges (:class:`UwbRanges`)
     the tag 0.5 mm). With a 0.1-s grid ``full_afkf`` runs 2.2× faster on ``longwall-200m``
     (200 s: 10.1 s against 21.9 s) at the same horizontal RMS (0.0216 against 0.0215 m).
 
-    ``max_range_m``: a range whose *predicted* tag–anchor distance ``r̃_i`` exceeds it produces
-    nothing (outside the anchor's working range; seed 004 §1 uses the anchors within ~10 m).
-    The predicted rather than the measured range decides, so that an NLOS-inflated reading of
-    a near anchor still reaches the gate and is counted there.
+    ``max_range_m``: a range whose predicted tag–anchor distance ``r̃_i`` *and* measured range
+    both exceed it produces nothing (outside the anchor's working range; seed 004 §1 uses the
+    anchors within ~10 m). An NLOS-inflated reading of a near anchor still reaches the gate and
+    is counted there, and so does a near anchor's reading when the SINS has drifted far: its
+    rejections tell the engine that the lock is lost (:mod:`fusion.lock`), and
+    :meth:`UwbRanges.reacquire` puts the filter back at a least-squares fix of the last
+    ranges.
 
     Range bias (``range_bias: true``): one state per anchor, block ``<name>.range_bias``, the
     bias ``b_i`` itself (m, never fed back), prior σ ``range_bias_sigma_m``; a first-order
@@ -120,12 +123,17 @@ from fusion.attitude import dcm_from_euler, dcm_from_quat, quat_from_rotvec
 from fusion.earth import LocalFrame
 from fusion.error_model import ATTITUDE, POSITION, VELOCITY, StateBlock
 from fusion.kalman import chi2_threshold
+from fusion.lock import Reacquisition
 from fusion.plugin import Measurement, MeasurementContext, Plugin, PluginOptions
 from fusion.recording import Recording, UwbData, UwbMeta
 from fusion.solution import Solution
 
 VB_ITERATIONS = 3
 """Fixed-point iterations of the variational-Bayes noise update (converges in 2–3)."""
+REACQUIRE_WINDOW_S = 1.0
+"""Ranges fitted together when the filter has lost lock (:meth:`UwbRanges.reacquire`)."""
+REACQUIRE_SPREAD_M = 0.1
+"""1σ per axis of the tag's travel over that window, and of the lever arm's turn."""
 
 
 class LeastSquaresOptions(BaseModel):
@@ -248,6 +256,48 @@ class UwbRanges(Plugin):
             return self.data.t
         return np.ceil(self.data.t / grid - 1e-9) * grid
 
+    def reacquire(self, t: float, ctx: MeasurementContext) -> Reacquisition | None:
+        """The IMU's position and velocity at ``t`` from the last ranges alone, or None.
+
+        Two least-squares fixes (:func:`_gauss_newton`, the tag taken at rest over each) of the
+        ranges in the two halves of the last ``2 ×`` :data:`REACQUIRE_WINDOW_S`, each from at
+        least three anchors: the position is the later one, the velocity their difference over
+        their spacing. A fit starts from the SINS position pulled to within the anchors' reach.
+        The position covariance adds the tag's travel over a window and the lever arm's turn
+        with an attitude that coasted too (:data:`REACQUIRE_SPREAD_M` per axis each).
+        """
+        window = REACQUIRE_WINDOW_S
+        arm_enu = ctx.rotation_to_local.T @ ctx.c_b_n @ self.lever_arm
+        fixes = [
+            self._fix(t0, t0 + window, ctx.position_enu + arm_enu)
+            for t0 in (t - 2 * window, t - window)
+        ]
+        if fixes[0] is None or fixes[1] is None:
+            return None
+        (p0, c0), (p1, c1) = fixes
+        spread = 2 * REACQUIRE_SPREAD_M**2 * np.eye(3)
+        return Reacquisition(
+            p1 - arm_enu, c1 + spread, (p1 - p0) / window, (c0 + c1 + 2 * spread) / window**2
+        )
+
+    def _fix(
+        self, t0: float, t1: float, guess: NDArray[np.float64]
+    ) -> tuple[NDArray[np.float64], NDArray[np.float64]] | None:
+        """Least-squares tag position from the ranges in (t0, t1], or None."""
+        lo = int(np.searchsorted(self.data.t, t0, side="right"))
+        hi = int(np.searchsorted(self.data.t, t1, side="right"))
+        index = self.data.anchor_index[lo:hi]
+        if np.unique(index).size < 3:
+            return None
+        anchors = self.anchors[index]
+        centre = anchors.mean(axis=0)
+        reach = float(np.max(self.data.range[lo:hi]))
+        offset = guess - centre
+        start = centre + offset * min(1.0, reach / max(float(np.linalg.norm(offset)), 1e-9))
+        sigma = float(np.max(self.noise_sigma()))
+        options = self.options.least_squares.model_copy(update={"sigma_range_m": sigma})
+        return _gauss_newton(anchors, self.data.range[lo:hi], start, None, options)
+
     def noise_sigma(self) -> NDArray[np.float64]:
         """Current range-noise σ per anchor (m): the configured one, or the learned one."""
         return np.sqrt(self.beta / self.alpha)
@@ -270,7 +320,8 @@ class UwbRanges(Plugin):
         back = ctx.t - float(self.data.t[index])  # > 0 on an epoch grid: the range came earlier
         line = rot @ (position - self.anchors[k]) - back * velocity + arm_n
         predicted = math.sqrt(float(line @ line))
-        if self.options.max_range_m is not None and predicted > self.options.max_range_m:
+        reach = self.options.max_range_m
+        if reach is not None and min(predicted, float(self.data.range[index])) > reach:
             return None
         u = line / predicted
         h = np.zeros(layout.dim)

@@ -113,9 +113,10 @@ def test_odometer_slip_taken_in_as_a_jump(recordings: dict[str, Recording], tmp_
     """A 30 % over-reading wheel for 15 s at 0.86 m/s. The kinematic local fails its χ² window
     at the first slipping reading; the AFKF waits for the jump detector, which takes the slip in
     at its onset and sets it back to rest at its end, and the local is never isolated.
-    Isolating it instead (the χ² window alone) leaves the SINS to coast with only the
-    magnetometer, and the CKF takes the slip into its odometer scale: both drift further
-    (11.2 m and 7.1 m against 2.7 m; 2.7 m without the slip). The issue's bound is 1.3× the
+    Without slip detection the odometer's adaptive noise soaks the slip up (its innovations
+    inflate R) and the CKF takes it into the odometer scale: both drift further (3.5 m and
+    4.0 m against 2.1 m; 2.1 m without the slip; before the adaptive noise the AFKF isolated
+    the kinematic local instead, 11.2 m). The issue's bound is 1.3× the
     clean run: seeds 0–7 give 0.77–1.2× except seed 3, 2.0× (1.9 m against 1.0 m; its onset
     estimate 0.269 ± 0.008 against 0.303 leaves 3 cm/s in the velocity during the slip).
     Before the odometer's reference windows were split at a slip's onset and end
@@ -140,10 +141,6 @@ def test_odometer_slip_taken_in_as_a_jump(recordings: dict[str, Recording], tmp_
     worst = {name: max_horizontal(run, slipping) for name, run in runs.items()}
     clean = max_horizontal(Engine(afkf, recordings["seed003-brokenline"]).run(), slipping)
     print(f"max horizontal under slip: {worst} (clean AFKF {clean:.2f} m)")
-    assert [(e.local, e.action) for e in runs["AFKF isolating"].faults] == [
-        ("kinematic", ISOLATE),
-        ("kinematic", READMIT),
-    ]
     assert worst["AFKF"] <= 1.3 * clean
     assert worst["AFKF"] < min(worst["AFKF isolating"], worst["CKF"])
 

@@ -200,7 +200,7 @@ def test_every_drawn_parameter_lies_in_its_range() -> None:
         assert uwb.nlos_probability == 0.0 and not w.faults
         assert _inside(w.support.noise_sigma_m, rg.support_noise_m)
     assert patterns == {"bidirectional", "unidirectional", "three_pass"}
-    assert pollings == {"staggered", "round_robin"}  # simultaneous: weight 0 by default
+    assert pollings == {"staggered", "round_robin", "simultaneous"}
     assert 10 <= quantized <= 40
 
 

@@ -198,9 +198,7 @@ class WorldRanges(_Ranges):
     initial_velocity_sigma_mps: Range = _range(0.005, 0.02, "meta σ per axis (m/s)")
     # odometer
     odometer_rate_hz: list[float] = Field(
-        default_factory=lambda: [10.0, 20.0],
-        description="choices (the engine updates at every reading: 50 Hz runs at a few times"
-        " real time)",
+        default_factory=lambda: [10.0, 20.0, 50.0], description="choices"
     )
     odometer_scale_error: Range = _range(-0.03, 0.03, "scale-factor error δk_D")
     odometer_mounting_deg: Range = _range(-1.0, 1.0, "mounting angle, per axis (deg)")
@@ -232,9 +230,9 @@ class WorldRanges(_Ranges):
         default=15.0, gt=0.0, description="anchors lie within this of their face end (m)"
     )
     uwb_polling: dict[str, float] = Field(
-        default_factory=lambda: {"staggered": 0.5, "round_robin": 0.5, "simultaneous": 0.0},
-        description="weights of the polling modes (simultaneous: after the reader accepts"
-        " shared time stamps)",
+        default_factory=lambda: {"staggered": 0.4, "round_robin": 0.4, "simultaneous": 0.2},
+        description="weights of the polling modes (simultaneous: a round's ranges share one"
+        " time stamp)",
     )
     uwb_round_rate_hz: Range = _range(5.0, 20.0, "rounds per second (round modes)")
     uwb_total_rate_hz: Range = _range(20.0, 60.0, "ranges per second (round robin)")

@@ -1,0 +1,78 @@
+"""Lost lock: a plugin whose every update the filter rejects, and its re-acquisition.
+
+A filter that has drifted far from the truth — a SINS coasting through a face traversal with no
+aiding in reach, then meeting the UWB anchors of the other face end — rejects every reading of
+a healthy sensor at its χ² gate: the innovations are far outside S because the σ is far below
+the error. Nothing then brings it back (``sins_uwb`` on random worlds: 10⁶ m horizontal RMS, the
+fix never re-acquired at the next face end), and nothing says so.
+
+:class:`LockMonitor` watches one gated plugin's updates: when over the last ``window_s`` it has
+had at least ``min_updates`` and the filter rejected every one, the lock is lost. The engine
+then asks the plugin for what it can say alone (:meth:`fusion.plugin.Plugin.reacquire`, e.g. a
+UWB least-squares fix from the ranges of the last seconds), restarts the filter's position and
+velocity at that fix, uncorrelated with the rest, and writes a ``reacquire`` line to
+``faults.csv``; a plugin that cannot say where the
+machine is gets a ``lost lock`` line. Either way the monitor starts over.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+LOST_LOCK, REACQUIRE = "lost lock", "reacquire"
+
+
+@dataclass(frozen=True)
+class Reacquisition:
+    """Where a plugin says the IMU is and how it moves, from its own readings alone: origin-ENU
+    position (m) and velocity (m/s) with their covariances (origin ENU axes)."""
+
+    position_enu: NDArray[np.float64]
+    covariance: NDArray[np.float64]
+    velocity_enu: NDArray[np.float64]
+    velocity_covariance: NDArray[np.float64]
+
+
+class LockMonitor:
+    """Rejections of one plugin's updates over a sliding window (module docstring).
+
+    Parameters
+    ----------
+    window_s
+        Length of the window (s).
+    min_updates
+        Updates the window must hold before a lost lock is declared.
+    """
+
+    def __init__(self, window_s: float, min_updates: int) -> None:
+        self.window_s = window_s
+        self.min_updates = min_updates
+        self._updates: deque[tuple[float, bool]] = deque()
+        self._accepted = 0
+        self._since: float | None = None
+        self.last_accepted: float | None = None
+        """Time of the last update the filter accepted (None: none yet)."""
+
+    def observe(self, t: float, accepted: bool) -> bool:
+        """Add one update; whether the lock is lost (every update of a full window rejected)."""
+        if accepted:
+            self.last_accepted = t
+        if self._since is None:
+            self._since = t
+        self._updates.append((t, accepted))
+        self._accepted += accepted
+        while self._updates[0][0] <= t - self.window_s:
+            self._accepted -= self._updates.popleft()[1]
+        full = t - self._since >= self.window_s and len(self._updates) >= self.min_updates
+        return full and self._accepted == 0
+
+    def reset(self) -> None:
+        """Start over (after a re-acquisition, or a lost lock reported): the next lost lock
+        needs a whole window of rejections again."""
+        self._updates.clear()
+        self._accepted = 0
+        self._since = None
