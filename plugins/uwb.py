@@ -268,13 +268,11 @@ class UwbRanges(Plugin):
         """
         window = REACQUIRE_WINDOW_S
         arm_enu = ctx.rotation_to_local.T @ ctx.c_b_n @ self.lever_arm
-        fixes = [
-            self._fix(t0, t0 + window, ctx.position_enu + arm_enu)
-            for t0 in (t - 2 * window, t - window)
-        ]
-        if fixes[0] is None or fixes[1] is None:
+        earlier = self._fix(t - 2 * window, t - window, ctx.position_enu + arm_enu)
+        later = self._fix(t - window, t, ctx.position_enu + arm_enu)
+        if earlier is None or later is None:
             return None
-        (p0, c0), (p1, c1) = fixes
+        (p0, c0), (p1, c1) = earlier, later
         spread = 2 * REACQUIRE_SPREAD_M**2 * np.eye(3)
         return Reacquisition(
             p1 - arm_enu, c1 + spread, (p1 - p0) / window, (c0 + c1 + 2 * spread) / window**2
