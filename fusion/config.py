@@ -298,10 +298,12 @@ class OdometerScreening(_Strict):
         " the tyre-friction limit of any wheeled vehicle (a shearer ramps at 0.02 m/s²)",
     )
     speed_step_floor_mps: float = Field(
-        0.05,
+        5.0,
         ge=0,
-        description="speed step always allowed (encoder quantization and noise at high rates;"
-        " the simulated encoders' noise is 2–10 mm/s)",
+        description="speed step always allowed: an encoder's count steps a reading by"
+        " 1 / (counts per metre × interval), 1 m/s for 50 counts/m at 50 Hz, and its carried"
+        " remainder makes the readings alternate between count levels; a rejected one would"
+        " lose its travel (0.05 m/s rejected 5–10 % of a quantized encoder's readings)",
     )
     recovery_samples: int = Field(
         3,

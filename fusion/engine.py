@@ -522,7 +522,10 @@ class Engine:
         plugin = self.plugins[src]
         layout, kf = bank.filter_of(src)
         shared = bank.shared_covariance(src)
-        m = plugin.measure(index, self._context(sins, layout, kf, t, shared))
+        ctx = self._context(sins, layout, kf, t, shared)
+        if plugin.beyond_linearization(index, ctx):  # a fix from the plugin alone, or nothing
+            return self._reacquire(src, t, sins, bank)
+        m = plugin.measure(index, ctx)
         if m is None:
             return False
         correlated = m.correlated
@@ -534,7 +537,12 @@ class Engine:
         bank.record(src, t, res, m.suspect)
         lock = self._locks[src]
         if lock is not None and lock.observe(t, res.accepted):
-            self._reacquire(src, t, sins, bank, lock)
+            lock.reset()
+            if not self._reacquire(src, t, sins, bank):
+                window = self.config.filter.lock_window_s
+                reason = f"every update of {plugin.name} rejected for {window:g} s"
+                event = FaultEvent(t, plugin.name, math.nan, math.nan, LOST_LOCK, reason)
+                bank.faults.append(event)
         if jumps is not None and signature is not None:
             events = [jumps.observe(t, bank, src, signature, res)]
             events += [jumps.rest(t, bank, name) for name in m.at_rest]
@@ -542,21 +550,15 @@ class Engine:
         logs[plugin.name].append(t, res, m.suspect)
         return res.accepted
 
-    def _reacquire(
-        self, src: int, t: float, sins: Strapdown, bank: FilterBank, lock: LockMonitor
-    ) -> None:
-        """A plugin lost lock (:mod:`fusion.lock`): move the SINS to where the plugin alone puts
-        it, restart position and velocity there, and report it; or report the lost lock."""
+    def _reacquire(self, src: int, t: float, sins: Strapdown, bank: FilterBank) -> bool:
+        """Move the SINS to where plugin ``src`` alone puts it, restart position and velocity
+        there and report it (:mod:`fusion.lock`); False when the plugin cannot say."""
         plugin = self.plugins[src]
         layout, kf = bank.filter_of(src)
         ctx = self._context(sins, layout, kf, t, bank.shared_covariance(src))
         fix = plugin.reacquire(t, ctx)
-        window = self.config.filter.lock_window_s
-        lock.reset()
         if fix is None:
-            reason = f"every update of {plugin.name} rejected for {window:g} s"
-            bank.faults.append(FaultEvent(t, plugin.name, math.nan, math.nan, LOST_LOCK, reason))
-            return
+            return False
         rot = ctx.rotation_to_local
         error = rot @ (ctx.position_enu - fix.position_enu)  # δp of the nominal, local metres
         velocity_error = ctx.velocity - rot @ fix.velocity_enu
@@ -569,6 +571,10 @@ class Engine:
         bank.faults.append(
             FaultEvent(t, plugin.name, float(np.linalg.norm(error)), math.nan, REACQUIRE, reason)
         )
+        lock = self._locks[src]
+        if lock is not None:
+            lock.reset()
+        return True
 
     def _store(self, src: int, index: int, t: float, sins: Strapdown, bank: FilterBank) -> None:
         """A plugin's store epoch: the filter takes on the stored error's covariances."""

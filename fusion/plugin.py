@@ -239,6 +239,13 @@ class Plugin(ABC):
         say (the lost lock is only reported)."""
         return None
 
+    def beyond_linearization(self, index: int, ctx: MeasurementContext) -> bool:
+        """Whether the filter is too uncertain for this plugin's linearized measurement of
+        epoch ``index`` (its nonlinearity would make the update overconfident): the engine then
+        asks :meth:`reacquire` instead, and applies nothing until the plugin can say where the
+        machine is. Default: never."""
+        return False
+
     def standalone_solution(self) -> Solution:
         """A solution from this sensor alone, without the SINS (``filter.architecture:
         standalone``), e.g. UWB least squares; default: the plugin cannot do that."""

@@ -100,7 +100,7 @@ def test_step_rule_recovers_from_a_real_step() -> None:
 
 
 def test_a_first_sample_that_was_off_does_not_lock_the_screen_out() -> None:
-    options = _options(odometer={"recovery_samples": 2})
+    options = _options(odometer={"recovery_samples": 2, "speed_step_floor_mps": 0.05})
     speed = np.full(8, 0.1)
     speed[0] = 4.9  # within the speed range, but the acceleration to 0.1 m/s is not
     odometer = OdometerData(t=np.arange(8) * 0.1, speed=speed)
@@ -108,10 +108,15 @@ def test_a_first_sample_that_was_off_does_not_lock_the_screen_out() -> None:
 
 
 def test_odometer_speed_and_acceleration() -> None:
+    """The speed limit always; the acceleration rule only beyond the step floor, which by
+    default lets any step within the speed range through (an encoder's count steps)."""
     speed = np.full(10, 0.1)
     speed[3] = 1e4
     speed[6] = 3.0  # within 5 m/s, but 2.9 m/s in 0.1 s is 3 g
-    verdicts, rules = screen_odometer(OdometerData(t=np.arange(10) * 0.1, speed=speed), DEFAULTS)
+    odometer = OdometerData(t=np.arange(10) * 0.1, speed=speed)
+    assert _rejected(screen_odometer(odometer, DEFAULTS)[0]) == [3]
+    options = _options(odometer={"speed_step_floor_mps": 0.05})
+    verdicts, rules = screen_odometer(odometer, options)
     assert _rejected(verdicts) == [3, 6]
     assert rules[verdicts[3] - 1] == "|speed| > 5 m/s"
     assert rules[verdicts[6] - 1].startswith("|Δspeed|")

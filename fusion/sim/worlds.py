@@ -222,7 +222,7 @@ class WorldRanges(_Ranges):
     soft_iron_off_diagonal: Range = _range(-0.005, 0.005, "soft-iron off-diagonal entries")
     mag_noise_uT: Range = _range(0.05, 0.3, "white noise per sample (µT)")
     # UWB
-    anchors_per_end: IntRange = _range(2, 4, "anchors at each face end")
+    anchors_per_end: IntRange = _range(3, 4, "anchors at each face end (a fix needs three)")
     anchor_outward_m: Range = _range(-3.0, 8.0, "anchor beyond the face end, along it (m)")
     anchor_across_m: Range = _range(-8.0, 12.0, "anchor across the face (+: advance) (m)")
     anchor_height_m: Range = _range(0.5, 3.0, "anchor height above the floor (m)")
