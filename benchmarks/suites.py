@@ -294,7 +294,11 @@ SEED003_FAULTY = (
     (
         "CKF",
         "sins_od_mag_ckf",
-        ("plugins.*.gate_probability=null", "plugins.magnetometer.adaptive_noise='off'"),
+        (
+            "plugins.*.gate_probability=null",
+            "plugins.magnetometer.adaptive_noise='off'",
+            "plugins.magnetometer.disturbance_indicator=false",
+        ),
     ),
     ("CKF, adaptive R", "sins_od_mag_ckf", ("plugins.*.gate_probability=null",)),
     ("CKF, adaptive R, χ² gate 0.999", "sins_od_mag_ckf", ("plugins.*.gate_probability=0.999",)),

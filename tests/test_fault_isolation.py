@@ -28,13 +28,14 @@ SHORT = ["static_start_s=30", "duration_s=125"]
 
 
 def _plain_ckf() -> FusionConfig:
-    """Seed 003's CKF: the magnetometer at its sensor noise, without the adaptive R and without
-    the disturbance indicator (whose flagged epochs the plugin down-weights)."""
+    """Seed 003's CKF: the magnetometer at its sensor noise, without the adaptive R, without
+    the disturbance indicator (whose flagged epochs the plugin down-weights) and ungated."""
     data = load_config(CONFIGS / "sins_od_mag_ckf.yaml").model_dump()
     for block in data["plugins"]:
         if block["type"] == "magnetometer":
             block["adaptive_noise"] = "off"
             block["disturbance_indicator"] = False
+            block["gate_probability"] = None
     return parse_config(data)
 
 
