@@ -284,6 +284,7 @@ class Engine:
             LockMonitor(cfg.lock_window_s, cfg.lock_min_updates) if gate is not None else None
             for gate in self.gates
         ]
+        self._last_accepted = [-math.inf] * len(self.plugins)
         states = jump_states(self.layout)
         jumps = (
             JumpDetector(self.layout, states, cfg.jump_detection, self._tell_owner)
@@ -535,8 +536,10 @@ class Engine:
         signature = jumps.innovation_signature(bank, src, m.H) if jumps is not None else None
         res = kf.update(m.z, m.H, m.R, self.gates[src], shared, correlated)
         bank.record(src, t, res, m.suspect)
+        if res.accepted:
+            self._last_accepted[src] = t
         lock = self._locks[src]
-        if lock is not None and lock.observe(t, res.accepted):
+        if lock is not None and lock.observe(t, res.accepted) and self._alone(src, t):
             lock.reset()
             if not self._reacquire(src, t, sins, bank):
                 window = self.config.filter.lock_window_s
@@ -549,6 +552,14 @@ class Engine:
             bank.faults.extend(e for e in events if e is not None)
         logs[plugin.name].append(t, res, m.suspect)
         return res.accepted
+
+    def _alone(self, src: int, t: float) -> bool:
+        """Whether no other plugin had an update accepted within the lock window before ``t``:
+        only then is a plugin whose updates are all rejected taken to show a filter that lost
+        its way (one that other sensors still hold is the suspect itself: a burst of NLOS on
+        every anchor, which re-acquiring from would have moved the SINS by the NLOS bias)."""
+        since = t - self.config.filter.lock_window_s
+        return all(last <= since for k, last in enumerate(self._last_accepted) if k != src)
 
     def _reacquire(self, src: int, t: float, sins: Strapdown, bank: FilterBank) -> bool:
         """Move the SINS to where plugin ``src`` alone puts it, restart position and velocity

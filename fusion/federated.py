@@ -67,10 +67,16 @@ applies a measurement whose noise carries a stored error in its decorrelated for
 every local at unit share; between update rounds, where every local holds the fused estimate,
 that is exactly the centralized filter's x + E Δ̂, P + E σ²_Δ Eᵀ.
 
-Fault isolation (:mod:`fusion.fault_detection`): an isolated local is excluded from the fusion and
-from resets and keeps filtering on its own (only re-referenced); on re-admission it is
-re-initialized from the global estimate like a reset, with the mean share of the healthy locals.
-If every local is isolated the fusion uses them all (there is nothing better to feed back).
+Fault isolation (:mod:`fusion.fault_detection`): an isolated local is excluded from the fusion but
+still reset to the global estimate (with the mean share of the healthy locals), so its fault
+monitor keeps judging its sensor against the solution the healthy sensors give: it is
+re-admitted when the sensor agrees with that again for ``hold_s``. A local isolated and left to
+filter on its own instead was dragged by the fault it had been isolated for (6.5° of heading by
+20 s of magnetic interference on seed003-brokenline) and, once the fault was over, judged
+against that drifted estimate of its own: re-admission waited for it to re-converge. In
+``no_reset`` mode an isolated local is only re-referenced and re-initialized from the global
+estimate on re-admission. If every local is isolated the fusion uses them all (there is
+nothing better to feed back).
 """
 
 from __future__ import annotations
@@ -320,12 +326,12 @@ class FederatedFilter:
     def shared_covariance(self, plugin: int) -> NDArray[np.float64] | None:
         """A local that takes part in fusion and reset holds the fused estimate with its common
         covariance inflated by 1/β_i; its measurements are judged against the local at unit
-        share, which is the centralized filter's covariance. An isolated local (or one in
-        ``no_reset`` mode) filters on its own: its own P."""
-        f = self.locals[self._local_of_plugin[plugin]]
-        if self.options.mode != "fusion_reset" or f not in self._members():
+        share, which is the centralized filter's covariance; so does an isolated local, which
+        is reset without taking part in the fusion. A local in ``no_reset`` mode filters on its
+        own: its own P."""
+        if self.options.mode != "fusion_reset":
             return None
-        return f.unit_share_covariance()
+        return self.locals[self._local_of_plugin[plugin]].unit_share_covariance()
 
     def record(self, plugin: int, t: float, result: UpdateResult, suspect: bool) -> None:
         """Feed the local's fault monitor; note isolation and re-admission events."""
@@ -441,7 +447,11 @@ class FederatedFilter:
             self._update_shares(members)
         rejoined = False
         for f in self.locals:
-            if f in members and self.options.mode == "fusion_reset":
+            if self.options.mode == "fusion_reset":
+                if f not in members:  # isolated: held at the global estimate, not fused
+                    f.beta = float(np.mean([m.beta for m in members]))
+                rejoined |= f.reinitialize
+                f.reinitialize = False
                 f.reset(x_g, p_g, e_g)
             elif f.reinitialize:
                 f.beta = float(np.mean([m.beta for m in members]))

@@ -7,7 +7,9 @@ the error. Nothing then brings it back (``sins_uwb`` on random worlds: 10⁶ m h
 fix never re-acquired at the next face end), and nothing says so.
 
 :class:`LockMonitor` watches one gated plugin's updates: when over the last ``window_s`` it has
-had at least ``min_updates`` and the filter rejected every one, the lock is lost. The engine
+had at least ``min_updates`` and the filter rejected every one, while no other plugin had an
+update accepted (another sensor still holding the filter makes this one the suspect: NLOS on
+every anchor looks the same from the UWB alone), the lock is lost. The engine
 then asks the plugin for what it can say alone (:meth:`fusion.plugin.Plugin.reacquire`, e.g. a
 UWB least-squares fix from the ranges of the last seconds), restarts the filter's position and
 velocity at that fix, uncorrelated with the rest, and writes a ``reacquire`` line to
