@@ -469,3 +469,16 @@ def test_consistency_over_20_seeds(mems_runs: list[CarrierRun]) -> None:
     print(f"shipped: CPOEM whitened RMS {whitened:.3f}, position RMS(err/σ) {position}")
     assert np.all(position < 1.5)
     assert whitened <= 1.3
+
+
+def test_a_recording_before_the_first_push_runs_without_support_csv(tmp_path: Path) -> None:
+    """The start of a shift, before any AFC push: no support.csv. Every configuration with
+    CPOEM refused such a recording; now CPOEM records its stations, waits for a push and
+    measures nothing."""
+    path = simulate("seed000-carrier", tmp_path / "rec", seed=0, overrides=["duration_s=200"])
+    (path / "support.csv").unlink()
+    rec = read_recording(path)
+    assert rec.support is None
+    result = Engine(load_config(CONFIGS / "sins_od_cpoem_rts.yaml"), rec).run()
+    assert result.innovations["cpoem"].count == 0
+    assert result.smoothed is not None and np.all(np.isfinite(result.smoothed.position))
