@@ -174,7 +174,8 @@ class FilterOptions(_Strict):
         True,
         description="shrink the horizontal specific force in F by its own uncertainty, so that a"
         " force within its error does not observe the heading (fusion.error_model."
-        "observable_force)",
+        "observable_force): for a slow machine; off for a car, a foot or a hand, whose"
+        " accelerations are real (with it a foot's ZUPT-aided track was 4× worse)",
     )
     discretization: Literal["series", "van_loan"] = "series"
     error_model: Literal["full", "low_speed"] = "full"

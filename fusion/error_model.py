@@ -400,11 +400,14 @@ def observable_force(
     variance of the horizontal part of δf^n (from the tilt and accelerometer-bias block of the
     covariance ``p_common``), the horizontal force enters F as
     ``f_h · |f_h|² / (|f_h|² + k² s²)``, ``k`` = :data:`FORCE_KNOWN_SIGMAS`: a force known to
-    many σ (a vehicle's turns and brakings, a foot's swing) observes the heading as before, one
-    within a few σ of its error (a shearer's few mg: with k = 10 its coupling is ~1 %) does not.
-    Measured on that world (SINS + odometer, 1500 s): k = 1 yaw error 43° at σ 8°, k = 3 28° at
-    15°, k = 5 16° at 16°, the horizontal force removed altogether 5° at 16°; a car's 0.1 g or a
-    foot's swing exceed 10 σ many times over.
+    many σ observes the heading as before, one within a few σ of its error (a shearer's few mg:
+    with k = 10 its coupling is ~1 %) does not. Measured on that world (SINS + odometer,
+    1500 s): k = 1 yaw error 43° at σ 8°, k = 3 28° at 15°, k = 5 16° at 16°, the horizontal
+    force removed altogether 5° at 16°. It is for a slow machine only: a foot's swing or a
+    car's braking is brief against the covariance step and partly shrunk, and the velocity
+    error it really causes is then missing from the model (PyShoe's foot-mounted trials: ARMSE
+    a median 22× the dataset's best_error with it, 4.8× without), so the configs of such
+    platforms set ``filter.observable_force: false``.
     """
     jacobian = np.hstack([kernels.skew(f_n), c_b_n])  # δf^n over (φ, ∇)
     blocks = np.r_[3:6, 12:15]
