@@ -5,8 +5,10 @@ Suites (issue 7): ``seed000`` (SEP per cutting cycle, Δ, RTS, IMU grades), ``se
 ZUPT), ``seed003`` (SINS/OD/MAG; CKF vs AFKF under magnetic interference), ``seed004`` (UWB),
 ``ablation`` (every configuration, nominal and with each injected fault), ``speed`` (real-time
 factor and peak memory on the 8-hour shift, beside the naive covariance step), ``robustness``
-(every configuration on 20 randomized worlds, failures counted) and ``robustness-smoke`` (its
-CI variant on short worlds, not part of ``all`` or RESULTS.md). Each writes
+(every configuration on 20 randomized worlds, failures counted), ``robustness-federated`` (its
+federated filters and ``full_ckf`` alone, to rerun after a change of the fault detection) and
+``robustness-smoke`` (its CI variant on short worlds); these two are not part of ``all`` or
+RESULTS.md. Each writes
 Markdown and CSV tables and PNG figures into ``--out`` (default ``benchmarks/results/SUITE/``).
 ``all`` runs every suite (the real-data one too) and regenerates ``benchmarks/RESULTS.md``;
 ``results`` only assembles RESULTS.md from the suites' last outputs (each section keeps its

@@ -91,9 +91,17 @@ def _smooths(config: str) -> bool:
 
 
 # ----------------------------------------------------------------------------- tasks, tables
-def robustness_tasks(runs: int, overrides: tuple[str, ...]) -> list[Task]:
-    """The worlds ``longwall-random`` 0 … runs−1, every configuration in a child process."""
-    methods = tuple(Method(c, c) for c in robustness_configs())
+FEDERATED_CONFIGS = ("full_afkf", "full_afkf_rts", "full_ckf", "sins_od_mag_afkf")
+"""``robustness-federated``: the federated filters (the ones that isolate) and the centralized
+filter they are compared with, to rerun after a change of the fault detection."""
+
+
+def robustness_tasks(
+    runs: int, overrides: tuple[str, ...], configs: Sequence[str] | None = None
+) -> list[Task]:
+    """The worlds ``longwall-random`` 0 … runs−1, each configuration (default: every one) in a
+    child process."""
+    methods = tuple(Method(c, c) for c in (configs or robustness_configs()))
     return [
         Task(
             suite="robustness",
@@ -174,6 +182,16 @@ def _table(configs: Sequence[str], title: str) -> list[TableSpec]:
 def robustness_tables() -> list[TableSpec]:
     """The configurations' table and the federated/centralized ratio."""
     return _table(robustness_configs(), "Every configuration on random worlds (longwall-random)")
+
+
+def federated_tasks(runs: int, overrides: tuple[str, ...]) -> list[Task]:
+    """:func:`robustness_tasks` for :data:`FEDERATED_CONFIGS`."""
+    return robustness_tasks(runs, overrides, FEDERATED_CONFIGS)
+
+
+def federated_tables() -> list[TableSpec]:
+    """:func:`robustness_tables` for :data:`FEDERATED_CONFIGS`."""
+    return _table(FEDERATED_CONFIGS, "Federated filters on random worlds (longwall-random)")
 
 
 def smoke_tables() -> list[TableSpec]:

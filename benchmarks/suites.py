@@ -32,6 +32,8 @@ import yaml
 
 from benchmarks.faults import FAULT_KINDS
 from benchmarks.robustness import (
+    federated_tables,
+    federated_tasks,
     ranges_preamble,
     robustness_tables,
     robustness_tasks,
@@ -578,6 +580,14 @@ SUITES: dict[str, Suite] = {
             robustness_tasks,
             robustness_tables,
             preamble=ranges_preamble,
+        ),
+        Suite(
+            "robustness-federated",
+            "the federated filters and full_ckf on the robustness worlds",
+            20,
+            federated_tasks,
+            federated_tables,
+            in_results=False,
         ),
         Suite(
             "robustness-smoke",
