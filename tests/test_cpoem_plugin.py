@@ -326,7 +326,7 @@ SHORT_MEMS = [
     "face.maneuver_speed_mpm=16",
     "motion.speed_mpm=[20,30]",
 ]
-MC_SEEDS = range(20)
+MC_SEEDS = range(10)
 PRESET_SEEDS = range(3)
 
 
@@ -338,8 +338,8 @@ class CarrierRun:
     across_cpoem: np.ndarray  # (4,) the same with configs/sins_od_cpoem.yaml
     squared_normalized: np.ndarray  # (N, 3) (err/σ)² of the CPOEM run
     nis_dof: tuple[float, int]  # Σ NIS and Σ m of all CPOEM updates
-    matched_ratios: np.ndarray  # (M, 9) err/σ of velocity, attitude, position (1 Hz), and
-    matched_nis_dof: tuple[float, int]  # the CPOEM NIS, with the noise the simulator used
+    matched_ratios: np.ndarray | None  # (M, 9) err/σ of velocity, attitude, position (1 Hz),
+    matched_nis_dof: tuple[float, int] | None  # and the CPOEM NIS, with the simulator's noise
 
 
 def _fuse(rec: Recording, config: str | FusionConfig) -> tuple[Engine, RunResult]:
@@ -401,12 +401,15 @@ def _across_per_cycle(result: RunResult, rec: Recording, plugin: Cpoem) -> np.nd
     return np.array([np.sqrt(np.mean(across[cycle == c] ** 2)) for c in (1, 2, 3, 4)])
 
 
-def _carrier_run(rec: Recording) -> CarrierRun:
+def _carrier_run(rec: Recording, with_matched: bool = True) -> CarrierRun:
+    """The shipped runs, and (``with_matched``) the one with the simulator's noise."""
     assert rec.truth is not None
     _, base = _fuse(rec, "sins_od_ckf.yaml")
     engine, fused = _fuse(rec, "sins_od_cpoem.yaml")
-    matched, matched_ratios = normalized_errors(
-        _matched_config(), rec, lambda index, _: index % 10 == 0
+    matched, matched_ratios = (
+        normalized_errors(_matched_config(), rec, lambda index, _: index % 10 == 0)
+        if with_matched
+        else (None, None)
     )
     plugin = engine.plugins[1]
     assert isinstance(plugin, Cpoem)
@@ -416,7 +419,7 @@ def _carrier_run(rec: Recording) -> CarrierRun:
         squared_normalized=_squared_normalized(fused, rec.truth),
         nis_dof=_nis_dof(fused),
         matched_ratios=matched_ratios,
-        matched_nis_dof=_nis_dof(matched),
+        matched_nis_dof=None if matched is None else _nis_dof(matched),
     )
 
 
@@ -434,7 +437,10 @@ def mems_runs(tmp_path_factory: pytest.TempPathFactory) -> list[CarrierRun]:
 def preset_runs(tmp_path_factory: pytest.TempPathFactory) -> list[CarrierRun]:
     root = tmp_path_factory.mktemp("cpoem_preset")
     return [
-        _carrier_run(read_recording(simulate("seed000-carrier", root / str(seed), seed=seed)))
+        _carrier_run(
+            read_recording(simulate("seed000-carrier", root / str(seed), seed=seed)),
+            with_matched=False,
+        )
         for seed in PRESET_SEEDS
     ]
 
@@ -446,7 +452,7 @@ def test_cpoem_reduces_the_error_across_the_face(
 ) -> None:
     """CPOEM against odometer + motion constraint alone (configs/sins_od_ckf.yaml), RMS error
     across the face averaged over the seeds: cycles 2–4, measured against earlier visits, at
-    most half; with the MEMS grade (20 short runs) every one of them; with the preset's
+    most half; with the MEMS grade (10 short runs) every one of them; with the preset's
     MTi-G-700 (3 full runs), whose 0.2 °/s turn-on gyro bias turns the heading by tens of
     degrees in the first pass, the first correction (cycle 2) is only partial, so each of
     them must merely be lower. Along the face CPOEM measures nothing (plugins/cpoem.py)."""
@@ -461,8 +467,8 @@ def test_cpoem_reduces_the_error_across_the_face(
 
 
 @pytest.mark.slow
-def test_consistency_over_20_seeds(mems_runs: list[CarrierRun]) -> None:
-    """With the noise the simulator used (:func:`_matched_config`), pooled over 20 seeds: the
+def test_consistency_over_10_seeds(mems_runs: list[CarrierRun]) -> None:
+    """With the noise the simulator used (:func:`_matched_config`), pooled over 10 seeds: the
     CPOEM innovations' whitened RMS in [0.7, 1.3] and RMS(err/σ) < 1.5 for velocity, attitude
     and position (at every tenth odometer epoch). The stored points' errors are correlated with
     the filter's (plugins/cpoem.py); taken as independent noise, R × n (the weighting before
