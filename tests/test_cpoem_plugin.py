@@ -326,7 +326,7 @@ SHORT_MEMS = [
     "face.maneuver_speed_mpm=16",
     "motion.speed_mpm=[20,30]",
 ]
-MC_SEEDS = range(10)
+MC_SEEDS = range(20)
 PRESET_SEEDS = range(3)
 
 
@@ -452,7 +452,7 @@ def test_cpoem_reduces_the_error_across_the_face(
 ) -> None:
     """CPOEM against odometer + motion constraint alone (configs/sins_od_ckf.yaml), RMS error
     across the face averaged over the seeds: cycles 2–4, measured against earlier visits, at
-    most half; with the MEMS grade (10 short runs) every one of them; with the preset's
+    most half; with the MEMS grade (20 short runs) every one of them; with the preset's
     MTi-G-700 (3 full runs), whose 0.2 °/s turn-on gyro bias turns the heading by tens of
     degrees in the first pass, the first correction (cycle 2) is only partial, so each of
     them must merely be lower. Along the face CPOEM measures nothing (plugins/cpoem.py)."""
@@ -467,8 +467,8 @@ def test_cpoem_reduces_the_error_across_the_face(
 
 
 @pytest.mark.slow
-def test_consistency_over_10_seeds(mems_runs: list[CarrierRun]) -> None:
-    """With the noise the simulator used (:func:`_matched_config`), pooled over 10 seeds: the
+def test_consistency_over_20_seeds(mems_runs: list[CarrierRun]) -> None:
+    """With the noise the simulator used (:func:`_matched_config`), pooled over 20 seeds: the
     CPOEM innovations' whitened RMS in [0.7, 1.3] and RMS(err/σ) < 1.5 for velocity, attitude
     and position (at every tenth odometer epoch). The stored points' errors are correlated with
     the filter's (plugins/cpoem.py); taken as independent noise, R × n (the weighting before
