@@ -409,14 +409,18 @@ def observable_force(
     a median 22× the dataset's best_error with it, 4.8× without), so the configs of such
     platforms set ``filter.observable_force: false``.
     """
-    jacobian = np.hstack([kernels.skew(f_n), c_b_n])  # δf^n over (φ, ∇)
-    blocks = np.r_[3:6, 12:15]
-    spread = jacobian[:2] @ p_common[np.ix_(blocks, blocks)] @ jacobian[:2].T
+    jacobian = np.empty((2, 6))  # the horizontal rows of δf^n over (φ, ∇): [(f^n×)ᵀ… | C_b^n]
+    jacobian[0, :3] = (0.0, -f_n[2], f_n[1])
+    jacobian[1, :3] = (f_n[2], 0.0, -f_n[0])
+    jacobian[:, 3:] = c_b_n[:2]
+    spread = float(np.sum((jacobian @ p_common[_TILT_AND_ACCEL_BIAS]) * jacobian))  # tr(J P Jᵀ)
     horizontal = float(f_n[0] ** 2 + f_n[1] ** 2)
-    noise = FORCE_KNOWN_SIGMAS**2 * float(np.trace(spread))
+    noise = FORCE_KNOWN_SIGMAS**2 * spread
     gain = horizontal / (horizontal + noise) if horizontal > 0.0 else 0.0
     return np.array([gain * f_n[0], gain * f_n[1], f_n[2]])
 
+
+_TILT_AND_ACCEL_BIAS = np.ix_(np.r_[3:6, 12:15], np.r_[3:6, 12:15])
 
 FORCE_KNOWN_SIGMAS = 10.0
 """How many σ of its own error a horizontal specific force must exceed to observe the heading
