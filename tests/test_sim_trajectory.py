@@ -251,8 +251,10 @@ def test_vibration_100hz_1h_documented() -> None:
 
 
 @pytest.mark.slow
-def test_mechanization_reproduces_truth_1h_1khz_vibration() -> None:
-    sc = _longwall("duration_s=3600", "imu.quadrature_nodes=3")
+def test_mechanization_reproduces_truth_20min_1khz_vibration() -> None:
+    """20 min of cutting vibration at 1 kHz (several passes, face-end manoeuvres, a push): the
+    coning and sculling terms hold. The hour without vibration is the 100-Hz test's."""
+    sc = _longwall("duration_s=1200", "imu.quadrature_nodes=3")
     horiz, height, att, _ = _mechanize_errors(sc, 1000.0)
     assert horiz < 0.01
     assert height < 0.05

@@ -184,7 +184,7 @@ def test_smoothing_across_isolations_is_finite_and_no_worse(tmp_path: Path) -> N
     close before them: the smoothed track is finite, its σ too, and it is no worse than the
     forward one (on an independent world the smoother returned a NaN σ from an isolation on)."""
     nlos = "faults=[{kind: uwb_nlos, t_start: 200, t_end: 230, bias_m: [0.3, 1.5]}]"
-    _, disturbed = clean_and_faulty(tmp_path, nlos)
+    _, disturbed = clean_and_faulty(tmp_path, nlos, duration_s=280.0, uwb_rate_hz=40.0)
     assert disturbed.truth is not None
     result = Engine(load_config(CONFIGS / "full_afkf_rts.yaml"), disturbed).run()
     assert any(e.action == ISOLATE for e in result.faults)
