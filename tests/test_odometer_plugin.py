@@ -244,7 +244,7 @@ def test_motion_constraint_survives_a_long_standstill(tmp_path: Path) -> None:
     assert rms["sins_mc"] < 0.05 * rms["sins_only"]
 
 
-N_SEEDS = 20
+N_SEEDS = 10
 SHORT_RUN = ["static_start_s=30", "duration_s=300"]
 
 
@@ -252,7 +252,7 @@ SHORT_RUN = ["static_start_s=30", "duration_s=300"]
 def test_monte_carlo_consistency(tmp_path: Path) -> None:
     """SINS + odometer alone (configs/sins_od_ckf.yaml, which models the MTi's in-run bias
     instability, with σ at the simulated encoder's 2 mm/s for the speed and the constraint)
-    over 20 seeded 300-s runs of ``longwall-200m``: whitened odometer innovations with RMS in
+    over 10 seeded 300-s runs of ``longwall-200m``: whitened odometer innovations with RMS in
     [0.7, 1.3], RMS(err/σ) < 1.5 for velocity, attitude and position, and the odometer holds
     the position where the free SINS drifts away (seed 000's direction of improvement).
 

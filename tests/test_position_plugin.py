@@ -1,5 +1,5 @@
 """Position fixes: H against numerical differentiation through a perturbed SINS state, and the
-plugin alone with the SINS over 20 seeded runs."""
+plugin alone with the SINS over 10 seeded runs."""
 
 from __future__ import annotations
 
@@ -67,7 +67,7 @@ FIXES = "position={rate_hz: 1.0, sigma_m: [0.02, 0.02, 0.03], lever_arm_b_m: [0.
 
 @pytest.mark.slow
 def test_monte_carlo_consistency(tmp_path: Path) -> None:
-    """SINS + 1-Hz position fixes (σ 2/2/3 cm, through a 0.9-m lever arm) alone over 20 seeded
+    """SINS + 1-Hz position fixes (σ 2/2/3 cm, through a 0.9-m lever arm) alone over 10 seeded
     laps of ``seed002-rectangle`` (a surface vehicle, the use the plugin is for: a GNSS or
     total-station test run): whitened RMS in [0.7, 1.3], RMS(err/σ) < 1.5 for velocity,
     attitude and position, and the fixes hold the position where the free SINS drifts away.
@@ -80,7 +80,7 @@ def test_monte_carlo_consistency(tmp_path: Path) -> None:
     data["name"], data["plugins"] = "sins_position", [{"type": "position"}]
     config = parse_config(data)
     free = load_config(CONFIGS / "sins_only.yaml")
-    runs = monte_carlo(config, free, "seed002-rectangle", tmp_path, 20, [FIXES])
+    runs = monte_carlo(config, free, "seed002-rectangle", tmp_path, 10, [FIXES])
     runs.report()
     assert np.all((runs.whitened >= 0.7) & (runs.whitened <= 1.3)), runs.whitened
     for group, value in runs.rms.items():

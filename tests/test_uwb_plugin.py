@@ -2,7 +2,7 @@
 
 * H against numerical differentiation of the full range model through a perturbed SINS state
   and the range-bias states; the innovation vanishes when the estimate equals the true error.
-* Monte Carlo over 20 seeded short runs of ``seed004-face-end`` (the last 2 m before the face
+* Monte Carlo over 10 seeded short runs of ``seed004-face-end`` (the last 2 m before the face
   end, 2 s static at each end; ~40 s of 160 ranges/s each, so ~1 min: marked slow): whitened
   innovations, RMS(err/σ) of position, velocity and attitude, and the face-end position error
   of SINS + UWB against UWB-only least squares.
@@ -61,7 +61,7 @@ SHORT_RUN = [
     f"face.length_m={FACE_LENGTH}",
     *(f"uwb.anchors.{k}=[{a - 10.0 + FACE_LENGTH}, {r}, {h}]" for k, (a, r, h) in ANCHORS.items()),
 ]
-N_SEEDS = 20
+N_SEEDS = 10
 
 
 # --------------------------------------------------------------------------------------------
@@ -319,7 +319,7 @@ def _run_probed(recording: Recording, config: Any, every: int = 40) -> tuple[Run
 
 @pytest.fixture(scope="module")
 def monte_carlo(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Any]:
-    """20 seeded short face-end runs: SINS + UWB (fixed σ) and UWB-only least squares."""
+    """10 seeded short face-end runs: SINS + UWB (fixed σ) and UWB-only least squares."""
     root = tmp_path_factory.mktemp("uwb_mc")
     config = _config()
     ratios, whitened, fused, fused_sigma, ls, ls_sigma = [], [], [], [], [], []
