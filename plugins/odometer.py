@@ -16,13 +16,14 @@ and the true ``v^m = [0, s̃ (1 − δk_D), 0]``. The measurement (mode ``odomet
 
 where the attitude and parameter columns take the vehicle velocity ``v^m = [0, s̄ / (1 + δk̂_D),
 0]`` (``v^n = C_b^n C_m^b v^m``) with s̄ a mean of readings *before* this one: of a 10-s window
-ending 2 s earlier while the speed is steady, of the last second while it changes, zero within
-3σ of standstill (:mod:`plugins.reference_speed`, which says why). The SINS velocity in the
-attitude columns also carried the cutting vibration that is in z: with the encoder's 2–3 mm/s
-as R, yaw RMS(ε/σ) 2.4 against 2.1 at the reference (``longwall-200m``, 8 seeds of 300 s; see
-also ``filter.specific_force_time_constant_s`` in :mod:`fusion.error_model`). Without an odometer
-(mode ``motion_constraint``) the attitude columns take the SINS velocity, zeroed only while its
-speed is below 1σ of its own uncertainty (``_attitude_column_velocity``).
+ending 2 s earlier while the speed is steady, of the last second while it changes, zero while
+the machine may stand (:func:`still_readings`; :mod:`plugins.reference_speed` says why). The
+SINS velocity in the attitude columns also carried the cutting vibration that is in z: with
+the encoder's 2–3 mm/s as R, yaw RMS(ε/σ) 2.4 against 2.1 at the reference (``longwall-200m``,
+8 seeds of 300 s; see also ``filter.specific_force_time_constant_s`` in
+:mod:`fusion.error_model`). Without an odometer (mode ``motion_constraint``) the attitude
+columns take the SINS velocity, zeroed only while its speed is below 1σ of its own
+uncertainty (``_attitude_column_velocity``).
 
 An encoder reading is the travel counted over its sample interval divided by its length, so ṽ^n
 is the *mean* nominal velocity over the same interval, ``(∫ v^n dt)`` between the previous
@@ -51,14 +52,15 @@ slip had pulled are put back, and the odometer keeps aiding with the slipping sc
 it would leave a MEMS SINS to coast, which drifts further than the slip pulls). The wheel's
 grip returning is the jump back to s = 0 (the state's rest), where s is then set exactly, so a
 slip does not leave its estimation error in δk_D. A standstill (every reading of the past
-``rest_guard_s`` within 3σ of zero) ends a slip episode for certain: the measurement reports s
-at rest, and a slip still held is restarted at zero (:meth:`fusion.jumps.JumpDetector.rest`).
-A slipping wheel turns more than the machine travels, so s leaves rest upwards only: the end of
-a slip whose onset went unnoticed (at a crawl the step is within the encoder noise) is not taken
-for a negative slip. A locked, skidding wheel (under-reading) is left to the fault monitor.
+``rest_guard_s`` a still one, :func:`still_readings`) ends a slip episode for certain: the
+measurement reports s at rest, and a slip still held is restarted at zero
+(:meth:`fusion.jumps.JumpDetector.rest`). A slipping wheel turns more than the machine
+travels, so s leaves rest upwards only: the end of a slip whose onset went unnoticed (at a
+crawl the step is within the encoder noise) is not taken for a negative slip. A locked,
+skidding wheel (under-reading) is left to the fault monitor.
 
 Zero angular rate at standstill (option ``zero_angular_rate``, mode ``odometer``): while every
-odometer reading of the past ``rest_guard_s`` is within 3σ of zero the machine stands, and the
+odometer reading of the past ``rest_guard_s`` is a still one the machine stands, and the
 gyro mean since the previous reading is the earth rate plus the bias (:mod:`plugins.zaru`). The
 encoder knows a stop the moment it begins, without the IMU detector's lag; this is the static
 gyro calibration a MEMS alignment starts with, repeated at every stop, and the only thing that
@@ -105,6 +107,36 @@ def reading_jitter(speed: NDArray[np.float64], window: int) -> NDArray[np.float6
     start = np.maximum(np.arange(speed.size) - window, 0)
     np.divide(total - total[start], 2.0 * count, out=out, where=count > 0)
     return out
+
+
+def still_readings(
+    t: NDArray[np.float64], speed: NDArray[np.float64], options: OdometerOptions
+) -> NDArray[np.bool_]:
+    """Readings at which the machine may stand: the reading within 3σ of zero (σ the configured
+    ``sigma_speed_mps``), and so is the mean of the readings over the last
+    ``reference_window_s`` (this one included) within 3σ/√n, σ there the larger of the
+    configured one and the readings' own noise (from their successive differences).
+
+    A single reading within 3σ of zero is not a standstill: a shearer cuts at 2–3 m/min
+    (0.03–0.05 m/s), within 3σ of an encoder whose σ is 1 cm/s. Taken as standing, such
+    readings had their columns zeroed while the machine moved, and δk_D walked to −0.24 ± 0.01
+    against a true +0.03 on a random world cutting at 2.1–3.1 m/min (sins_od_ckf: along-face
+    error 7.9 m at a σ of 0.4 m after 900 s). The mean of a second of readings separates such a
+    crawl from a stand by a factor √n."""
+    n_readings = t.size
+    if n_readings == 0:
+        return np.empty(0, bool)
+    first = np.searchsorted(t, t - options.reference_window_s, side="right")
+    last = np.arange(1, n_readings + 1)
+    count = last - first
+    total = np.concatenate([[0.0], np.cumsum(speed)])
+    mean = (total[last] - total[first]) / count
+    step2 = np.concatenate([[0.0], np.cumsum(np.diff(speed, prepend=speed[:1]) ** 2)])
+    pairs = np.maximum(count - 1, 1)  # differences with both readings inside the window
+    noise = np.sqrt((step2[last] - step2[np.minimum(first + 1, last)]) / (2.0 * pairs))
+    sigma = np.maximum(options.sigma_speed_mps, noise)
+    reading_still = np.abs(speed) < 3.0 * options.sigma_speed_mps
+    return reading_still & (np.abs(mean) <= 3.0 * sigma / np.sqrt(count))
 
 
 class OdometerOptions(PluginOptions):
@@ -189,7 +221,11 @@ class Odometer(Plugin):
         # C_b^m from the mounting angles in the recording's attitude convention (m relative to b).
         self.c_b_m = dcm_from_euler(r, p, y).T
         self.speed = recording.odometer.speed if recording.odometer is not None else np.empty(0)
-        self.still = np.abs(self.speed) < 3.0 * options.sigma_speed_mps  # within 3σ of zero
+        self.still = (
+            still_readings(recording.odometer.t, self.speed, options)
+            if recording.odometer is not None
+            else np.empty(0, bool)
+        )
         self.reference = ReferenceSpeed(
             recording.odometer.t if recording.odometer is not None else np.empty(0),
             self.speed,
@@ -219,7 +255,7 @@ class Odometer(Plugin):
         )
 
     def _standstill(self) -> NDArray[np.bool_]:
-        """Readings preceded by ``rest_guard_s`` of readings within 3σ of zero (this one too)."""
+        """Readings preceded by ``rest_guard_s`` of still readings (this one too)."""
         assert self.recording.odometer is not None
         t = self.recording.odometer.t
         moving = ~self.still
@@ -387,7 +423,7 @@ class Odometer(Plugin):
     ) -> float:
         """Vehicle speed of the parameter and attitude columns (:mod:`plugins.reference_speed`)
         with the scale estimates ``scale`` (δk_D and, with slip detection, s) and the travel
-        axis ``along`` in n; zero when the previous reading is within 3σ of standstill."""
+        axis ``along`` in n; zero when the previous reading is a still one."""
         if self.still[max(index - 1, 0)]:
             return 0.0
         slip = float(scale[1]) if scale.size > 1 else 0.0

@@ -16,7 +16,7 @@ from fusion.metrics import compute_metrics
 from fusion.recording import OdometerData, OdometerMeta, Recording, read_recording
 from fusion.sim.scenario import load_scenario
 from fusion.sim.simulate import simulate
-from plugins.odometer import Odometer, OdometerOptions
+from plugins.odometer import Odometer, OdometerOptions, still_readings
 from plugins.reference_speed import ReferenceSpeed
 from tests.plugin_support import (
     SEED002_SPEC,
@@ -291,3 +291,24 @@ def _matched_odometer(config: FusionConfig, sigma: float) -> FusionConfig:
                 block[key] = sigma
             block["adaptive_noise"] = False
     return parse_config(data)
+
+
+@pytest.mark.parametrize(
+    ("speed_mps", "noise_mps", "still_share"),
+    [(0.0, 0.0, 1.0), (0.0, 0.008, 0.99), (0.035, 0.018, 0.0), (0.025, 0.0, 0.0)],
+)
+def test_a_crawl_is_not_a_standstill(
+    speed_mps: float, noise_mps: float, still_share: float
+) -> None:
+    """A shearer cutting at 2.1 m/min read by a 50-Hz encoder whose noise (1.8 cm/s) is larger
+    than the configured 1 cm/s, or a noise-free encoder at 1.5 m/min, is moving: most single
+    readings lie within 3σ of zero, the mean of a second of them does not. A stand is still,
+    noise-free or with noise within the configured σ (at least 99 % of the readings)."""
+    rng = np.random.default_rng(3)
+    t = np.arange(0.0, 120.0, 0.02)
+    speed = speed_mps + noise_mps * rng.standard_normal(t.size)
+    still = still_readings(t, speed, OdometerOptions(sigma_speed_mps=0.01))[50:]
+    if still_share == 0.0:
+        assert not still.any()
+    else:
+        assert still.mean() >= still_share
