@@ -502,6 +502,7 @@ class Engine:
             gyro_bias=sins.gyro_bias.copy(),
             accel_bias=sins.accel_bias.copy(),
             travel=sins.travel.copy(),
+            observable_force=self.config.filter.observable_force,
         )
 
     def _tell_owner(self, state: JumpState, onset: float, before: float) -> None:

@@ -399,7 +399,7 @@ def observable_force(
     instability of 24 °/h the yaw ran 40° away with a σ of 6° in 25 minutes. With ``s²`` the
     variance of the horizontal part of δf^n (from the tilt and accelerometer-bias block of the
     covariance ``p_common``), the horizontal force enters F as
-    ``f_h · |f_h|² / (|f_h|² + k² s²)``, ``k`` = :data:`FORCE_KNOWN_SIGMAS`: a force known to
+    ``f_h · |f_h|² / (|f_h|² + k² s²)``, ``k`` = :data:`KNOWN_SIGMAS`: a force known to
     many σ observes the heading as before, one within a few σ of its error (a shearer's few mg:
     with k = 10 its coupling is ~1 %) does not. Measured on that world (SINS + odometer,
     1500 s): k = 1 yaw error 43° at σ 8°, k = 3 28° at 15°, k = 5 16° at 16°, the horizontal
@@ -415,16 +415,17 @@ def observable_force(
     jacobian[:, 3:] = c_b_n[:2]
     spread = float(np.sum((jacobian @ p_common[_TILT_AND_ACCEL_BIAS]) * jacobian))  # tr(J P Jᵀ)
     horizontal = float(f_n[0] ** 2 + f_n[1] ** 2)
-    noise = FORCE_KNOWN_SIGMAS**2 * spread
+    noise = KNOWN_SIGMAS**2 * spread
     gain = horizontal / (horizontal + noise) if horizontal > 0.0 else 0.0
     return np.array([gain * f_n[0], gain * f_n[1], f_n[2]])
 
 
 _TILT_AND_ACCEL_BIAS = np.ix_(np.r_[3:6, 12:15], np.r_[3:6, 12:15])
 
-FORCE_KNOWN_SIGMAS = 10.0
-"""How many σ of its own error a horizontal specific force must exceed to observe the heading
-(:func:`observable_force`)."""
+KNOWN_SIGMAS = 10.0
+"""How many σ of its own error a nominal quantity in a Jacobian must exceed to inform the
+heading: the horizontal specific force (:func:`observable_force`), the SINS velocity of the
+motion constraint's attitude columns (:meth:`plugins.odometer.Odometer`)."""
 
 
 class SpecificForceFilter:

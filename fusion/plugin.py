@@ -141,6 +141,9 @@ class MeasurementContext:
         does not enter it): its difference between two epochs over their spacing is the mean
         nominal velocity in between, what an interval-mean sensor (an odometer's counts per
         sample) is to be compared with.
+    observable_force
+        ``filter.observable_force``: a slow machine, whose nominal quantities inform the
+        heading only where they are known to many σ (:func:`fusion.error_model.observable_force`).
     """
 
     t: float
@@ -156,6 +159,7 @@ class MeasurementContext:
     gyro_bias: NDArray[np.float64] = field(default_factory=lambda: np.zeros(3))
     accel_bias: NDArray[np.float64] = field(default_factory=lambda: np.zeros(3))
     travel: NDArray[np.float64] = field(default_factory=lambda: np.zeros(3))
+    observable_force: bool = True
 
     @cached_property
     def _local_point(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
