@@ -22,8 +22,8 @@ SINS velocity in the attitude columns also carried the cutting vibration that is
 the encoder's 2–3 mm/s as R, yaw RMS(ε/σ) 2.4 against 2.1 at the reference (``longwall-200m``,
 8 seeds of 300 s; see also ``filter.specific_force_time_constant_s`` in
 :mod:`fusion.error_model`). Without an odometer (mode ``motion_constraint``) the attitude
-columns take the SINS velocity, zeroed only while its speed is below 1σ of its own
-uncertainty (``_attitude_column_velocity``).
+columns take the SINS velocity as far as it is known: on a slow machine shrunk by its own
+uncertainty, otherwise zeroed while its speed is below 1σ of it (``_attitude_column_velocity``).
 
 An encoder reading is the travel counted over its sample interval divided by its length, so ṽ^n
 is the *mean* nominal velocity over the same interval, ``(∫ v^n dt)`` between the previous
