@@ -151,23 +151,28 @@ def test_reference_speed_steady_window() -> None:
 
 
 def test_constraint_attitude_columns_wait_for_a_speed_clear_of_its_uncertainty() -> None:
-    """Mode motion_constraint: the attitude columns are −C (v×) at the SINS velocity while its
-    speed exceeds its 1σ along it, and zero below (a drift at a standstill is no direction)."""
+    """Mode motion_constraint: the attitude columns are −C (v×) at the SINS velocity known as
+    far as it is: on a slow machine (``observable_force``) shrunk by |v|² / (|v|² + 100 σ²), σ
+    its uncertainty along v; otherwise whole while the speed exceeds 1σ, zero below (a drift
+    at a standstill is no direction)."""
     rec = Recording(path=None, meta=recording_meta(), imu=still_imu(), odometer=None)
     plugin = Odometer("mc", OdometerOptions(mode="motion_constraint"), rec)
     layout = layout_with(plugin.state_blocks())
     velocity = np.array([0.0, 0.5, 0.0])
     attitude = layout.slice("attitude")
-    for sigma_along, moving in ((0.4, True), (0.6, False)):
+    cases = [(0.4, False, 1.0), (0.6, False, 0.0)]
+    cases += [(sigma, True, 0.25 / (0.25 + 100.0 * sigma**2)) for sigma in (0.01, 0.05, 0.6)]
+    for sigma_along, slow_machine, share in cases:
         covariance = np.eye(layout.dim) * 1e-6
         north = layout.slice("velocity").start + 1
         covariance[north, north] = sigma_along**2
         ctx = perturbed_context(
             layout, np.zeros(layout.dim), velocity=velocity, covariance=covariance
         )
+        ctx = replace(ctx, observable_force=slow_machine)
         columns = plugin.measure(0, ctx).H[:, attitude]
         expected = -(plugin.c_b_m @ ctx.c_b_n.T @ skew(velocity))[[0, 2]]  # rows x, z
-        np.testing.assert_allclose(columns, expected if moving else 0.0, atol=1e-12)
+        np.testing.assert_allclose(columns, share * expected, atol=1e-12)
 
 
 def test_zero_angular_rate_at_odometer_standstill() -> None:

@@ -116,22 +116,7 @@ def test_smoke_suite_completes_without_a_failed_run(smoke_rows: list[dict[str, A
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize(
-    "config",
-    [
-        "full_afkf_rts",
-        pytest.param(
-            "sins_od_cpoem_rts",
-            marks=pytest.mark.xfail(
-                reason="issue 29: on 200-s worlds CPOEM sees no push and measures nothing, so"
-                " this is SINS/OD dead reckoning, whose heading σ is overconfident under a"
-                " world's in-run gyro-bias instability; smoothing that model moves the track"
-                " either way (pooled 0.196 against 0.191 m forward, 2026-11-26)",
-                strict=False,
-            ),
-        ),
-    ],
-)
+@pytest.mark.parametrize("config", ["full_afkf_rts", "sins_od_cpoem_rts"])
 def test_smoothed_is_no_worse_than_forward(config: str, smoke_rows: list[dict[str, Any]]) -> None:
     """Per configuration, the smoothed horizontal RMS pooled over the worlds and their median
     are at most the forward ones, and no world's smoothed track is clearly worse than its
