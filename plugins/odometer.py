@@ -82,7 +82,7 @@ from fusion.attitude import dcm_from_euler, skew
 from fusion.error_model import ATTITUDE, KNOWN_SIGMAS, VELOCITY, StateBlock
 from fusion.plugin import Measurement, MeasurementContext, Plugin, PluginOptions
 from fusion.recording import Recording
-from plugins.reference_speed import ReferenceSpeed
+from plugins.reference_speed import ReferenceSpeed, reading_noise
 from plugins.zaru import ZeroAngularRate
 
 SLIP_PRIOR_SIGMA = 1e-4  # no slip at the start; a jump opens it (fusion.jumps)
@@ -131,10 +131,7 @@ def still_readings(
     count = last - first
     total = np.concatenate([[0.0], np.cumsum(speed)])
     mean = (total[last] - total[first]) / count
-    step2 = np.concatenate([[0.0], np.cumsum(np.diff(speed, prepend=speed[:1]) ** 2)])
-    pairs = np.maximum(count - 1, 1)  # differences with both readings inside the window
-    noise = np.sqrt((step2[last] - step2[np.minimum(first + 1, last)]) / (2.0 * pairs))
-    sigma = np.maximum(options.sigma_speed_mps, noise)
+    sigma = np.maximum(options.sigma_speed_mps, reading_noise(speed, first, last))
     reading_still = np.abs(speed) < 3.0 * options.sigma_speed_mps
     return reading_still & (np.abs(mean) <= 3.0 * sigma / np.sqrt(count))
 

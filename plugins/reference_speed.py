@@ -57,6 +57,21 @@ STEADY_SIGMAS = 3.0
 """The speed is steady while the short and steady means agree within this many σ."""
 
 
+def reading_noise(
+    speed: NDArray[np.float64], first: NDArray[np.intp], last: NDArray[np.intp]
+) -> NDArray[np.float64]:
+    """The readings' noise σ̂ in each window ``speed[first:last]`` from their successive
+    differences, ``σ̂² = Σ (s_j − s_{j−1})² / (2 (n − 1))`` over the pairs inside the window
+    (insensitive to a slow change of speed; it includes what vibration puts into the readings;
+    0 for a window of fewer than two readings)."""
+    step = np.diff(speed, prepend=speed[:1])
+    total_step2 = np.concatenate([[0.0], np.cumsum(step**2)])
+    pairs = np.maximum(last - first - 1, 1)
+    steps = total_step2[last] - total_step2[np.minimum(first + 1, last)]
+    noise: NDArray[np.float64] = np.sqrt(steps / (2.0 * pairs))
+    return noise
+
+
 class ReferenceSpeed:
     """Per reading, the window of earlier readings whose mean is the column's speed.
 
@@ -95,15 +110,11 @@ class ReferenceSpeed:
     def _bound(self) -> NDArray[np.float64]:
         """3σ of the difference of the two windows' means (−1 where a window is too short)."""
         (short_first, short_last), (steady_first, steady_last) = self.short, self.steady
-        step = np.diff(self.speed, prepend=self.speed[:1])
-        total_step2 = np.concatenate([[0.0], np.cumsum(step**2)])
         n_short = short_last - short_first
         n_steady = steady_last - steady_first
         usable = (n_short >= 1) & (n_steady >= 2)
         n_short, n_steady = np.maximum(n_short, 1), np.maximum(n_steady, 2)
-        # Differences s_j − s_{j−1} with both readings inside the steady window.
-        steps = total_step2[steady_last] - total_step2[np.minimum(steady_first + 1, steady_last)]
-        noise = np.sqrt(steps / (2.0 * (n_steady - 1)))
+        noise = reading_noise(self.speed, steady_first, steady_last)
         bound = STEADY_SIGMAS * noise * np.sqrt(1.0 / n_short + 1.0 / n_steady)
         return np.where(usable, bound, -1.0)
 

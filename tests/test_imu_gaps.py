@@ -65,7 +65,7 @@ def test_gap_noise_is_a_bias_held_over_the_gap() -> None:
 @pytest.fixture(scope="module")
 def gap_pair(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path]:
     root = tmp_path_factory.mktemp("gap")
-    short = [*MID_FACE[:1], "duration_s=160", "uwb.rate_hz=10"]  # each anchor at 10 Hz
+    short = [*MID_FACE, "duration_s=160", "uwb.rate_hz=10"]  # each anchor at 10 Hz
     gap = "faults=[{kind: imu_gap, t_start: 120, t_end: 121}]"
     simulate("longwall-200m", root / "clean", seed=4, overrides=short)
     simulate("longwall-200m", root / "gap", seed=4, overrides=[*short, gap])
