@@ -275,7 +275,9 @@ class Engine:
         if cfg.architecture == "dead_reckoning":
             return self._without_filter(wall0, self._dead_reckoning())
         if cfg.architecture == "standalone":
-            return self._without_filter(wall0, self.plugins[0].standalone_solution())
+            log = InnovationLog()
+            solution = self.plugins[0].standalone_solution(self.gates[0], log)
+            return self._without_filter(wall0, solution, {self.plugins[0].name: log})
         sins = Strapdown(
             imu.t, imu.gyro, imu.accel, self.initial_state(), coning_sculling=cfg.coning_sculling
         )
@@ -462,14 +464,16 @@ class Engine:
             self.config.filter.dead_reckoning,
         )
 
-    def _without_filter(self, wall0: float, solution: Solution) -> RunResult:
+    def _without_filter(
+        self, wall0: float, solution: Solution, logs: dict[str, InnovationLog] | None = None
+    ) -> RunResult:
         """Result of an architecture that estimates nothing (dead reckoning, standalone)."""
         return RunResult(
             solution=solution,
             layout=self.layout,
             final_state=np.zeros(self.layout.dim),
             final_covariance=self.layout.initial_covariance(),
-            innovations={},
+            innovations={} if logs is None else logs,
             faults=[],
             wall_time_s=time.perf_counter() - wall0,
             config=self.config,

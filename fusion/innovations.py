@@ -51,12 +51,16 @@ class InnovationLog:
 
     def append(self, t: float, result: UpdateResult, suspect: bool) -> None:
         """Log one update."""
-        self._chunk[self._filled] = (t, result.nis, result.dof, result.accepted, suspect)
+        self.record(t, result.nis, result.dof, result.accepted, suspect)
+
+    def record(self, t: float, nis: float, dof: int, accepted: bool, suspect: bool) -> None:
+        """Log one update from its figures (a solver that is not a Kalman update)."""
+        self._chunk[self._filled] = (t, nis, dof, accepted, suspect)
         self._filled += 1
         self.count += 1
-        if result.accepted:
-            self._accepted_nis += result.nis
-            self._accepted_dof += result.dof
+        if accepted:
+            self._accepted_nis += nis
+            self._accepted_dof += dof
         else:
             self.rejected += 1
         if self._filled == CHUNK_RECORDS:

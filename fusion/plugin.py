@@ -35,6 +35,7 @@ from pydantic import BaseModel, ConfigDict, ValidationError
 from fusion.config import FusionConfig
 from fusion.earth import LocalFrame
 from fusion.error_model import StateBlock, StateLayout
+from fusion.innovations import InnovationLog
 from fusion.kalman import CorrelatedNoise
 from fusion.lock import Reacquisition
 from fusion.recording import Recording
@@ -250,9 +251,11 @@ class Plugin(ABC):
         machine is. Default: never."""
         return False
 
-    def standalone_solution(self) -> Solution:
+    def standalone_solution(self, gate_probability: float | None, log: InnovationLog) -> Solution:
         """A solution from this sensor alone, without the SINS (``filter.architecture:
-        standalone``), e.g. UWB least squares; default: the plugin cannot do that."""
+        standalone``), e.g. UWB least squares, its readings gated at the block's
+        ``gate_probability`` and each one used or rejected logged in ``log``; default: the
+        plugin cannot do that."""
         raise PluginError(
             f"plugin {self.name!r} ({type(self).__name__}) has no standalone solution;"
             " filter.architecture standalone needs one that has (e.g. uwb)"

@@ -84,21 +84,43 @@ UWB-only least squares (:func:`least_squares_solution`)
 
         Σ_k (ρ_k − ‖p − a_k‖)² / σ²      (+ (p_u − u_ref)² / σ_h²)
 
-    from the previous window's fix (the first from meta.yaml's initial state). For a steady
-    motion the fit refers to the mean time, except that the anchors are ranged at staggered
-    times within a round: at 4 m/min and 40 Hz rounds their ranges refer to points ≤ 1.3 mm
-    apart along the track, a few millimetres after the geometry's amplification — far below
-    the ranging noise (estimating a velocity per window instead is hopeless far from the
-    anchors: over 0.25 s its σ reaches metres per second). The covariance of ``p`` is
-    ``(JᵀR⁻¹J)⁻¹`` at the solution (σ as configured, not rescaled by the residuals); the
-    velocity is the slope of a line through the fixes within ``±velocity_span_s/2``.
+    from the prediction of the previous fixes (the first from meta.yaml's initial state). For
+    a steady motion the fit refers to the mean time, except that the anchors are ranged at
+    staggered times within a round: at 4 m/min and 40 Hz rounds their ranges refer to points
+    ≤ 1.3 mm apart along the track, a few millimetres after the geometry's amplification —
+    far below the ranging noise (estimating a velocity per window instead is hopeless far
+    from the anchors: over 0.25 s its σ reaches metres per second). The covariance of ``p``
+    is ``(JᵀR⁻¹J)⁻¹`` at the solution, at the learned σ below; the velocity is the slope of
+    a line through the fixes within ``±velocity_span_s/2``.
 
-    Vertical: anchors at nearly one height determine the tag height poorly far from them
-    (seed 004 §3.2 reports its larger z error for that reason), and a tag below the anchors
-    has a mirror solution above them. Gauss–Newton starts from the previous fix, which keeps
-    it on the physical side while σ_u is well below the tag's depth under the anchors; far
-    from them (σ_u ≈ 0.4 m at 14 m in ``seed004-face-end``) a fix can still fall towards the
-    anchors' plane, and its σ_u from ``(JᵀR⁻¹J)⁻¹`` says how poorly the height is determined.
+    Mirror solutions: ranges to three anchors, or to more that lie nearly in one plane (a
+    row along a roadway, anchors at one height on the roof), fit a point and its mirror image
+    across that plane about equally well. Anchors at nearly one height determine the tag
+    height poorly far from them (seed 004 §3.2 reports its larger z error for that reason)
+    and put a mirror above a tag below them; a row of anchors in plan puts one beside it.
+    Each window is solved from the prediction (the weighted line through the last
+    ``velocity_span_s`` of fixes, extrapolated), from its mirror image and from the first
+    solution's mirror image (:func:`_window_fix`); of the solutions that fit within the gate,
+    the one nearest the prediction is kept. Continuity rules the other out when it is more
+    than 3σ of the prediction (its scatter, plus ``max_speed_mps`` times the time without a
+    fix) farther away; otherwise the kept one's covariance is widened by half the squared
+    offset to the other, and once the two are separated by more than 3σ of the fit itself
+    without continuity telling them apart, the branch counts as unknown and every later fix
+    is widened likewise until a window's χ² rules its mirror out (a fourth anchor off the
+    plane). From a start near the plane a fix may therefore sit on the mirror, metres off,
+    with a σ that says so.
+
+    Noise and outliers: ranges are gated at the block's ``gate_probability`` (χ²(1)) first
+    against the prediction's ranges (variance σ² plus the prediction's), as long as
+    ``min_anchors`` anchors pass — a non-line-of-sight (NLOS) range pulls a fit of four
+    anchors towards it and hides among their residuals — then by the fit's own residuals,
+    the largest dropped and the window solved again while it exceeds the gate. Every range
+    is logged with its squared standardized residual and the verdict. The ranging σ is
+    learned from the accepted residuals (:class:`_ResidualNoise`, forgetting time
+    ``noise_window_s``, never below ``sigma_range_m``), and the covariance is
+    ``(JᵀJ)⁻¹ σ²`` at that σ: per-anchor noise that differs by 2× and a tag moving within
+    the window both show in the residuals.
+
     Optionally (``height_sigma_m``) a height constraint — the tag height of meta.yaml's
     initial state with that σ — is one more row: for a machine known to stay near one
     height. It is applied only when configured, never silently.
@@ -106,12 +128,14 @@ UWB-only least squares (:func:`least_squares_solution`)
     A window with fewer than ``min_anchors`` distinct anchors, a singular normal matrix or no
     convergence gives no fix. The IMU point is the tag minus ``R_localᵀ C ℓ`` with the
     attitude of meta.yaml's initial state (UWB does not observe attitude; the solution
-    carries that attitude, constant). No outlier rejection: NLOS ranges enter the fit.
+    carries that attitude, constant).
 """
 
 from __future__ import annotations
 
+import bisect
 import math
+from dataclasses import dataclass
 from typing import Literal
 
 import numpy as np
@@ -122,6 +146,7 @@ from pydantic import BaseModel, ConfigDict, Field, model_validator
 from fusion.attitude import dcm_from_euler, dcm_from_quat, quat_from_rotvec
 from fusion.earth import LocalFrame
 from fusion.error_model import ATTITUDE, POSITION, VELOCITY, StateBlock
+from fusion.innovations import InnovationLog
 from fusion.kalman import chi2_threshold
 from fusion.lock import Reacquisition
 from fusion.plugin import Measurement, MeasurementContext, Plugin, PluginOptions
@@ -148,9 +173,23 @@ class LeastSquaresOptions(BaseModel):
     height_sigma_m: float | None = Field(
         None, gt=0, description="σ of the optional height constraint (None: none)"
     )
-    velocity_span_s: float = Field(2.0, gt=0, description="fixes regressed for the velocity")
+    velocity_span_s: float = Field(
+        2.0, gt=0, description="fixes regressed for the velocity and for the next fix's guess"
+    )
+    max_speed_mps: float = Field(
+        1.0,
+        gt=0,
+        description="fastest tag motion between two fixes: how far continuity may move the"
+        " guess that picks one of two mirror solutions (a shearer's haulage ≤ 30–40 m/min)",
+    )
     max_iterations: int = Field(20, ge=1, description="Gauss–Newton iterations per window")
     tolerance_m: float = Field(1e-4, gt=0, description="Gauss–Newton convergence step")
+    noise_window_s: float | None = Field(
+        30.0,
+        gt=0,
+        description="forgetting time of the ranging noise learned from the fits' residuals"
+        " (never below sigma_range_m; None: sigma_range_m throughout)",
+    )
 
 
 class UwbOptions(PluginOptions):
@@ -226,9 +265,11 @@ class UwbRanges(Plugin):
         self.t_last = np.full(n, np.nan)
         self._screen = chi2_threshold(1, options.adaptive_screen_probability)
 
-    def standalone_solution(self) -> Solution:
+    def standalone_solution(self, gate_probability: float | None, log: InnovationLog) -> Solution:
         """The UWB-only least-squares baseline with ``options.least_squares``."""
-        return least_squares_solution(self.recording, self.options.least_squares)
+        return least_squares_solution(
+            self.recording, self.options.least_squares, gate_probability, log
+        )
 
     def state_blocks(self) -> tuple[StateBlock, ...]:
         """One range bias per anchor when ``range_bias`` is on."""
@@ -429,8 +470,233 @@ def _local_slope(
     return np.where(denom[:, None] > 0, slope, 0.0)
 
 
+class _ResidualNoise:
+    """Ranging-noise σ of the least-squares fits, learned from their residuals.
+
+    ``σ² = (S + n₀ σ₀²) / (D + n₀)``, never below the configured ``σ₀``, with ``S`` the sum of
+    the accepted ranges' squared residuals and ``D`` their degrees of freedom (ranges − 3 per
+    window), both forgotten with ``exp(−Δt/τ)``, and the prior weighing :data:`PRIOR_DOF`.
+    ``τ`` None: σ₀ always.
+    """
+
+    PRIOR_DOF = 10.0
+
+    def __init__(self, sigma: float, window_s: float | None) -> None:
+        self.floor = sigma
+        self.window_s = window_s
+        self.sum = 0.0
+        self.dof = 0.0
+        self.t: float | None = None
+
+    def sigma(self, t: float) -> float:
+        """The noise σ to weigh and gate the window at ``t`` with."""
+        if self.window_s is None:
+            return self.floor
+        self._forget(t)
+        variance = (self.sum + self.PRIOR_DOF * self.floor**2) / (self.dof + self.PRIOR_DOF)
+        return max(self.floor, math.sqrt(variance))
+
+    def add(self, t: float, squared_residuals_m2: float, dof: int) -> None:
+        """Learn from one fit's accepted residuals."""
+        if self.window_s is None or dof <= 0:
+            return
+        self._forget(t)
+        self.sum += squared_residuals_m2
+        self.dof += dof
+
+    def _forget(self, t: float) -> None:
+        if self.t is not None and self.window_s is not None:
+            rho = math.exp(-max(t - self.t, 0.0) / self.window_s)
+            self.sum *= rho
+            self.dof *= rho
+        self.t = t
+
+
+def _predicted_tag(
+    times: list[float],
+    tags: list[NDArray[np.float64]],
+    weights: list[float],
+    t: float,
+    span: float,
+) -> tuple[NDArray[np.float64], float]:
+    """Where the tag is expected at ``t`` and the variance (m², summed over the axes) of that
+    guess: the weighted line through the fixes of the last ``span`` seconds (weights
+    1/tr(cov): an ambiguous fix barely counts), extrapolated by at most ``span``; their
+    weighted mean when there are fewer than three. ``times`` is not empty."""
+    first = bisect.bisect_left(times, times[-1] - span)
+    w = np.asarray(weights[first:])
+    pp = np.asarray(tags[first:])
+    centre = w @ pp / w.sum()
+    variance = 1.0 / float(w.sum())
+    if w.size < 3:
+        return centre, variance
+    tt = np.asarray(times[first:]) - times[-1]
+    t_mean = float(w @ tt / w.sum())
+    tc = tt - t_mean
+    slope = (w * tc) @ (pp - centre) / float((w * tc) @ tc)
+    return centre + slope * (min(t - times[-1], span) - t_mean), variance
+
+
+def _mirrored(point: NDArray[np.float64], anchors: NDArray[np.float64]) -> NDArray[np.float64]:
+    """``point`` reflected across the plane that best fits the anchors (the other solution of
+    three anchors' ranges; for more, nearly coplanar, anchors the other local minimum)."""
+    distinct = np.unique(anchors, axis=0)
+    centre = distinct.mean(axis=0)
+    normal = np.linalg.svd(distinct - centre)[2][-1]
+    return point - 2.0 * float((point - centre) @ normal) * normal
+
+
+@dataclass(frozen=True)
+class _Fit:
+    """One window's solution: position, covariance at the learned σ, the ranges kept, every
+    range's squared standardized residual, and the other solution that fits within the gate
+    (its rival), if any."""
+
+    position: NDArray[np.float64]
+    covariance: NDArray[np.float64]
+    used: NDArray[np.bool_]
+    squared: NDArray[np.float64]
+    rival: NDArray[np.float64] | None
+
+
+def _window_fix(
+    anchors: NDArray[np.float64],
+    index: NDArray[np.int64],
+    ranges: NDArray[np.float64],
+    expected: tuple[NDArray[np.float64], float],
+    height: tuple[float, float] | None,
+    options: LeastSquaresOptions,
+    sigma: float,
+    gate: float | None,
+) -> _Fit | None:
+    """Fix of one window, or None.
+
+    Gauss–Newton runs from the prediction, from its mirror image across the anchors' plane
+    and from the first solution's mirror image; of the solutions whose χ² is within the gate
+    of the best, the one nearest the prediction is kept and the next one is its rival
+    (three anchors always have two). ``expected`` is the prediction and its variance (m², all
+    axes). Ranges are gated first against the prediction (when its variance is finite, and
+    as long as ``min_anchors`` anchors pass), then, while the largest residual exceeds the
+    gate, that range is dropped and the window solved again; a window left with fewer than
+    ``min_anchors`` anchors gives no fix.
+    """
+    prediction, spread = expected
+    used = np.ones(ranges.size, dtype=bool)
+    if gate is not None and math.isfinite(spread):
+        expected_range = np.linalg.norm(prediction - anchors, axis=1)
+        near = (ranges - expected_range) ** 2 <= gate * (sigma**2 + spread / 3.0)
+        if np.unique(index[near]).size >= options.min_anchors:
+            used = near
+    margin = chi2_threshold(1, 0.999) if gate is None else gate
+    while True:
+        solutions = _solutions(anchors[used], ranges[used], prediction, height, options, sigma)
+        if not solutions:
+            return None
+        best = min(cost for _, _, cost in solutions)
+        plausible = sorted(
+            (fit for fit in solutions if fit[2] <= best + margin),
+            key=lambda fit: float(np.linalg.norm(fit[0] - prediction)),
+        )
+        p, cov, cost = plausible[0]
+        squared = ((ranges - np.linalg.norm(p - anchors, axis=1)) / sigma) ** 2
+        worst = int(np.argmax(np.where(used, squared, -1.0)))
+        if gate is None or squared[worst] <= gate:
+            rivals = [q for q, _, _ in plausible[1:] if _apart(q, p, options)]
+            if not rivals:  # no second minimum found: is the mirror point itself ruled out?
+                q = _mirrored(p, anchors[used])
+                excess = _chi2(q, anchors[used], ranges[used], height, sigma) - cost
+                if excess <= margin and _apart(q, p, options):
+                    rivals.append(q)
+            return _Fit(p, cov, used, squared, rivals[0] if rivals else None)
+        used[worst] = False
+        if np.unique(index[used]).size < options.min_anchors:
+            return None
+
+
+def _solutions(
+    anchors: NDArray[np.float64],
+    ranges: NDArray[np.float64],
+    prediction: NDArray[np.float64],
+    height: tuple[float, float] | None,
+    options: LeastSquaresOptions,
+    sigma: float,
+) -> list[tuple[NDArray[np.float64], NDArray[np.float64], float]]:
+    """Gauss–Newton solutions (position, covariance at ``sigma``, χ²) from the prediction,
+    from its mirror image and from the first solution's mirror image (both starts may fall
+    into one basin)."""
+    found: list[tuple[NDArray[np.float64], NDArray[np.float64], float]] = []
+    scale = (sigma / options.sigma_range_m) ** 2
+    for start in (prediction, _mirrored(prediction, anchors), None):
+        if start is None:
+            if not found:
+                break
+            start = _mirrored(found[0][0], anchors)
+        fit = _gauss_newton(anchors, ranges, start, height, options)
+        if fit is not None:
+            found.append((fit[0], fit[1] * scale, _chi2(fit[0], anchors, ranges, height, sigma)))
+    return found
+
+
+def _apart(a: NDArray[np.float64], b: NDArray[np.float64], options: LeastSquaresOptions) -> bool:
+    """Two solutions are distinct: farther apart than Gauss–Newton's convergence step."""
+    return float(np.linalg.norm(a - b)) > options.tolerance_m
+
+
+class _Branch:
+    """Which of two mirror solutions the tag is on (module docstring, "Mirror solutions").
+
+    While the branch is known, a rival more than 3σ of the prediction farther from it than
+    the kept solution is ruled out by continuity. A rival that is not widens the kept
+    solution's covariance by half the squared offset to it (the second moment about the kept
+    one of two equally likely solutions), and when the two are also more than 3σ of the fit
+    apart the branch becomes unknown: every later rival widens the covariance, until a window
+    whose χ² rules the mirror out makes it known again.
+    """
+
+    def __init__(self) -> None:
+        self.known = True  # meta.yaml's initial state tells the two apart
+
+    def spread(self, spread: float) -> float:
+        """The prediction's variance as far as continuity goes (infinite: branch unknown)."""
+        return spread if self.known else math.inf
+
+    def resolve(
+        self, fit: _Fit, prediction: NDArray[np.float64], spread: float
+    ) -> NDArray[np.float64]:
+        """The covariance to report with ``fit``'s position (``spread`` from :meth:`spread`)."""
+        if fit.rival is None:
+            self.known = True
+            return fit.covariance
+        rival = fit.rival
+        nearest = float(np.linalg.norm(fit.position - prediction))
+        if float(np.linalg.norm(rival - prediction)) >= nearest + 3.0 * math.sqrt(spread):
+            return fit.covariance
+        offset = rival - fit.position
+        apart2 = float(offset @ offset)
+        if apart2**2 > 9.0 * float(offset @ fit.covariance @ offset):
+            self.known = False
+        return fit.covariance + 0.5 * np.outer(offset, offset)
+
+
+def _chi2(
+    p: NDArray[np.float64],
+    anchors: NDArray[np.float64],
+    ranges: NDArray[np.float64],
+    height: tuple[float, float] | None,
+    sigma: float,
+) -> float:
+    """The fit's cost: squared standardized range residuals (+ the height constraint's)."""
+    cost = float(np.sum(((ranges - np.linalg.norm(p - anchors, axis=1)) / sigma) ** 2))
+    if height is not None:
+        cost += ((p[2] - height[0]) / height[1]) ** 2
+    return cost
+
+
 def least_squares_solution(
-    recording: Recording, options: LeastSquaresOptions | None = None
+    recording: Recording,
+    options: LeastSquaresOptions | None = None,
+    gate_probability: float | None = None,
+    log: InnovationLog | None = None,
 ) -> Solution:
     """UWB-only Gauss–Newton fixes of the IMU point, one per window of ranges.
 
@@ -440,6 +706,12 @@ def least_squares_solution(
         A recording with ``uwb.csv`` (the IMU stream is not used).
     options
         Noise, window, constraints (defaults: :class:`LeastSquaresOptions`).
+    gate_probability
+        χ²(1) quantile of a range's residual beyond which it is dropped from its window's fit
+        (None: every range enters the fit).
+    log
+        When given, receives one record per range of the windows that gave a fix: its
+        squared standardized residual and whether the gate kept it.
 
     Returns
     -------
@@ -465,23 +737,53 @@ def least_squares_solution(
     tag = np.asarray(init.position_enu_m, dtype=float) + arm_enu
     height = None if opts.height_sigma_m is None else (float(tag[2]), opts.height_sigma_m)
     anchors = np.array([meta.anchors[a] for a in data.anchor_ids], dtype=float)
+    gate = None if gate_probability is None else chi2_threshold(1, gate_probability)
+    noise = _ResidualNoise(opts.sigma_range_m, opts.noise_window_s)
 
     keep = np.ones(data.t.size, dtype=bool)
     if opts.max_range_m is not None:
         keep = data.range <= opts.max_range_m
     t, index, ranges = data.t[keep], data.anchor_index[keep], data.range[keep]
     window = np.floor((t - data.t[0]) / opts.window_s).astype(np.int64)
-    out_t, out_p, out_cov = [], [], []
+    out_t: list[float] = []
+    out_p: list[NDArray[np.float64]] = []
+    out_cov: list[NDArray[np.float64]] = []
+    out_w: list[float] = []
+    branch = _Branch()
     for sel in np.split(np.arange(t.size), np.flatnonzero(np.diff(window)) + 1):
         if np.unique(index[sel]).size < opts.min_anchors:
             continue
-        fix = _gauss_newton(anchors[index[sel]], ranges[sel], tag, height, opts)
-        if fix is None:
+        t_mean = float(np.mean(t[sel]))
+        sigma = noise.sigma(t_mean)
+        if out_t:
+            prediction, spread = _predicted_tag(out_t, out_p, out_w, t_mean, opts.velocity_span_s)
+            gap = max(t_mean - out_t[-1] - opts.window_s, 0.0)  # windows without a fix
+            spread += (opts.max_speed_mps * gap) ** 2
+        else:
+            prediction, spread = tag, float(np.sum(np.square(init.sigma.position_m)))
+        spread = branch.spread(spread)
+        fit = _window_fix(
+            anchors[index[sel]],
+            index[sel],
+            ranges[sel],
+            (prediction, spread),
+            height,
+            opts,
+            sigma,
+            gate,
+        )
+        if fit is None:
             continue
-        tag, cov = fix
-        out_t.append(float(np.mean(t[sel])))
+        tag, cov = fit.position, branch.resolve(fit, prediction, spread)
+        used, squared = fit.used, fit.squared
+        noise.add(t_mean, float(np.sum(squared[used])) * sigma**2, int(used.sum()) - 3)
+        if log is not None:
+            for t_k, nis, accepted in zip(t[sel], squared, used, strict=True):
+                log.record(float(t_k), float(nis), 1, bool(accepted), False)
+        out_t.append(t_mean)
         out_p.append(tag)
         out_cov.append(cov)
+        out_w.append(1.0 / float(np.trace(cov)))
     if not out_t:
         raise ValueError(
             f"UWB least squares: no window of {opts.window_s} s of uwb.csv in"
