@@ -539,7 +539,7 @@ class Engine:
             offset = self.stored_error_offsets[src]
             correlated = replace(correlated, columns=correlated.columns + offset)
         signature = jumps.innovation_signature(bank, src, m.H) if jumps is not None else None
-        res = kf.update(m.z, m.H, m.R, self.gates[src], shared, correlated)
+        res = kf.update(m.z, m.H, m.R, self.gates[src], shared, correlated, m.consider)
         bank.record(src, t, res, m.suspect)
         if res.accepted:
             self._last_accepted[src] = t

@@ -173,6 +173,7 @@ class KalmanFilter:
         gate_probability: float | None = None,
         statistic_covariance: NDArray[np.float64] | None = None,
         correlated: CorrelatedNoise | None = None,
+        consider: tuple[int, ...] = (),
     ) -> UpdateResult:
         """Measurement update (see module docstring); ``z`` (m,), ``h`` (m, n), ``r`` (m, m).
 
@@ -180,7 +181,9 @@ class KalmanFilter:
         innovation is whitened and gated, S = H P' Hᵀ + R; the gain always uses ``P``. A
         federated local passes its covariance at unit share (:mod:`fusion.federated`): its own
         ``P`` is inflated by 1/β_i and would make every test 1/β_i too lenient. ``correlated``:
-        the noise carries stored errors (``R`` their part included).
+        the noise carries stored errors (``R`` their part included). ``consider``: states
+        whose gain is zero (Schmidt-Kalman): the Joseph form keeps P right for that gain and
+        leaves their variances unchanged.
         """
         z = np.atleast_1d(np.asarray(z, dtype=float))
         h = np.ascontiguousarray(np.atleast_2d(h), dtype=float)
@@ -204,6 +207,9 @@ class KalmanFilter:
                 return UpdateResult(False, nu, whitened, nis, threshold, whitening)
         if cov_state_noise is not None:
             ph_t = ph_t + cov_state_noise
+        if consider:
+            ph_t = ph_t.copy()
+            ph_t[list(consider)] = 0.0
         self.x, self.P, gain = _joseph(self.x, self.P, nu, chol, ph_t, h, r, self._identity)
         if self.columns.shape[1]:
             self.columns = self.columns - gain @ (h @ self.columns)

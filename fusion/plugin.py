@@ -69,10 +69,17 @@ class Measurement:
     correlated: CorrelatedNoise | None = None
     """The noise carries the errors of the plugin's stored estimates (columns numbered from 0
     within the plugin's :meth:`Plugin.stored_errors`); ``R`` includes their covariance."""
+    consider: tuple[int, ...] = ()
+    """States (indices of the filter's layout) that the update leaves alone — Schmidt's
+    consider states: their uncertainty enters S and the other states' gains through their
+    columns of H and their covariances, their own gain is zero (:meth:`KalmanFilter.update`).
+    For a column that only a linearization at an erroneous state makes informative."""
 
     def stacked_with(self, other: Measurement) -> Measurement:
         """This measurement and ``other`` as one (rows appended, independent noise apart from
-        the stored errors one of them may carry)."""
+        the stored errors one of them may carry; both must consider the same states)."""
+        if self.consider != other.consider:
+            raise ValueError("cannot stack two measurements that consider different states")
         return Measurement(
             np.concatenate([self.z, other.z]),
             np.vstack([self.H, other.H]),
@@ -80,6 +87,7 @@ class Measurement:
             self.suspect or other.suspect,
             self.at_rest + tuple(n for n in other.at_rest if n not in self.at_rest),
             _stacked_noise(self, other),
+            self.consider,
         )
 
 

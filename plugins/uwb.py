@@ -23,6 +23,18 @@ Tightly coupled ranges (:class:`UwbRanges`)
     innovation ``z − H x̂`` is the residual ``r̂_i + b̂_i − ρ_i`` of the corrected state.
     The plugin adds the lever-arm (attitude) columns that seed 004's H (eq. 24) omits.
 
+    Heading through the lever arm. The heading column ``(u × C̃ℓ)_z`` informs the heading only
+    through a turn of the lever arm; a slow machine barely turns, and what the column then
+    sees turning is the nominal attitude itself — its feedback corrections and the drift of
+    an estimated vertical gyro bias — so that the heading and the vertical gyro bias were
+    learned from nothing (a random world without any heading source: the bias σ fell from
+    1000 to 64 °/h in 10 min while its estimate was 870 °/h wrong, the yaw 138° off at a σ
+    of 8°). Under ``filter.observable_force`` (a slow machine) the heading is therefore a
+    consider state of the range update (:attr:`fusion.plugin.Measurement.consider`): its
+    uncertainty enters S and, through its correlations, the position's σ, but the update
+    does not correct it. A fast platform (``observable_force: false``) keeps the column as
+    information.
+
     One scalar measurement per range (``epochs()`` are the ``uwb.csv`` row times), so that a
     non-line-of-sight (NLOS) range, whose bias is large and positive, is rejected alone by the
     engine's χ² gate (the block's ``gate_probability``) without taking the other anchors with it.
@@ -345,7 +357,18 @@ class UwbRanges(Plugin):
         start = centre + offset * min(1.0, reach / max(float(np.linalg.norm(offset)), 1e-9))
         sigma = float(np.max(self.noise_sigma()))
         options = self.options.least_squares.model_copy(update={"sigma_range_m": sigma})
-        return _gauss_newton(anchors, self.data.range[lo:hi], start, None, options)
+        found = _solutions(anchors, self.data.range[lo:hi], start, None, options, sigma)
+        if not found:
+            return None
+        # Of the fit and its mirror image (three anchors, or more in one plane), the one
+        # nearer the SINS: it is lost by metres, not by the anchors' distance to their plane.
+        best = min(cost for _, _, cost in found)
+        margin = chi2_threshold(1, self.options.adaptive_screen_probability)
+        position, covariance, _ = min(
+            (fit for fit in found if fit[2] <= best + margin),
+            key=lambda fit: float(np.linalg.norm(fit[0] - guess)),
+        )
+        return position, covariance
 
     def noise_sigma(self) -> NDArray[np.float64]:
         """Current range-noise σ per anchor (m): the configured one, or the learned one."""
@@ -387,7 +410,9 @@ class UwbRanges(Plugin):
         if self.options.range_bias:
             h[layout.slice(self.bias_block).start + k] = -1.0
         variance = self._variance(index, k, ctx, z, h)
-        return Measurement(np.array([z]), h[None, :], np.array([[variance]]))
+        # A slow machine: the lever arm's heading column is the consider state (docstring).
+        consider = (att.start + 2,) if ctx.observable_force else ()
+        return Measurement(np.array([z]), h[None, :], np.array([[variance]]), consider=consider)
 
     def _variance(
         self, index: int, k: int, ctx: MeasurementContext, z: float, h: NDArray[np.float64]

@@ -47,6 +47,10 @@ running, set it to the measured standstill vibration velocity.
 Zero angular rate (ZARU, option ``zero_angular_rate``): at a ZUPT epoch the machine does not
 turn either, so the gyro mean since the previous epoch is the earth rate plus the bias
 (:mod:`plugins.zaru`): every gyro bias, the vertical one included, becomes observable at rest.
+With ``zero_velocity: false`` the epoch gives the ZARU alone: for a machine that can creep
+too smoothly for the IMU to tell it from a stop (a shearer hauling at a few m/min without
+cutting) but never turns at that pace, so that a wrong "stationary" costs nothing, where a
+zero velocity would hold the position while the machine drives on.
 
 Epochs and delay: epochs are a regular grid at ``update_rate_hz`` on the IMU clock; the epoch at
 ``t`` uses the label of the last IMU sample at or before ``t``. In causal mode that label is
@@ -223,6 +227,9 @@ class ZuptOptions(PluginOptions):
     zero_angular_rate: bool = Field(
         False, description="also a zero-angular-rate update (ZARU) on the gyro biases at rest"
     )
+    zero_velocity: bool = Field(
+        True, description="false: only the ZARU at a detected standstill (needs zero_angular_rate)"
+    )
     angular_rate_floor_dps: float = Field(
         0.002, ge=0, description="ZARU noise added to the averaged ARW (standstill vibration)"
     )
@@ -253,6 +260,8 @@ class ZuptOptions(PluginOptions):
         lo, hi = self.accel_min_mps2, self.accel_max_mps2
         if lo is not None and hi is not None and lo >= hi:
             raise ValueError(f"accel_min_mps2 ({lo}) must be below accel_max_mps2 ({hi})")
+        if not self.zero_velocity and not self.zero_angular_rate:
+            raise ValueError("zero_velocity: false leaves nothing to update: set zero_angular_rate")
         return self
 
 
@@ -333,7 +342,8 @@ class Zupt(Plugin):
         return self._epochs
 
     def measure(self, index: int, ctx: MeasurementContext) -> Measurement | None:
-        """Zero velocity at a ZUPT epoch; else the motion constraint (if configured) or None."""
+        """Zero velocity (and/or angular rate) at a ZUPT epoch; else the motion constraint (if
+        configured) or None."""
         if not self.zupt_epoch[index]:
             return self.constraint.measure(index, ctx) if self.constraint is not None else None
         h = np.zeros((3, ctx.layout.dim))
@@ -342,6 +352,5 @@ class Zupt(Plugin):
         if self.zero_rate is None:
             return zupt
         t = self._epochs[index]
-        return zupt.stacked_with(
-            self.zero_rate.measure(t - 1.0 / self.options.update_rate_hz, t, ctx)
-        )
+        zaru = self.zero_rate.measure(t - 1.0 / self.options.update_rate_hz, t, ctx)
+        return zupt.stacked_with(zaru) if self.options.zero_velocity else zaru

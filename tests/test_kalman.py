@@ -214,3 +214,23 @@ def test_innovations_against_a_stored_estimate_are_consistent() -> None:
     assert abs(np.var(errors[True]) / np.mean(variances[True]) - 1.0) < 0.1
     assert np.mean(nis[False]) < 0.5
     assert abs(np.var(errors[False]) / np.mean(variances[False]) - 1.0) > 0.1
+
+
+def test_consider_states_are_left_alone_and_the_rest_updated_as_by_kalman() -> None:
+    """Schmidt–Kalman: the considered states keep their estimate and variance; the others get
+    the estimate and covariance of the full Kalman update (their gain does not depend on
+    whether the considered states are corrected), and P stays symmetric positive definite."""
+    for seed in range(5):
+        _, _, h, r, p0, x0 = _problem(seed)
+        z = np.random.default_rng(seed + 10).standard_normal(h.shape[0])
+        full, schmidt = KalmanFilter(x0, p0), KalmanFilter(x0, p0)
+        full.update(z, h, r)
+        schmidt.update(z, h, r, consider=(2, 4))
+        kept = [0, 1, 3, 5]
+        np.testing.assert_allclose(schmidt.x[[2, 4]], x0[[2, 4]], atol=0)
+        np.testing.assert_allclose(schmidt.P[np.ix_([2, 4], [2, 4])], p0[np.ix_([2, 4], [2, 4])])
+        np.testing.assert_allclose(schmidt.x[kept], full.x[kept], atol=1e-12)
+        np.testing.assert_allclose(
+            schmidt.P[np.ix_(kept, kept)], full.P[np.ix_(kept, kept)], atol=1e-10
+        )
+        assert np.all(np.linalg.eigvalsh(schmidt.P) > 0)

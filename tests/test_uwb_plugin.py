@@ -26,7 +26,9 @@ import pytest
 from fusion.attitude import dcm_from_euler
 from fusion.config import load_config, parse_config
 from fusion.engine import Engine, RunResult
+from fusion.error_model import ATTITUDE, GYRO_BIAS
 from fusion.innovations import InnovationLog
+from fusion.kalman import KalmanFilter
 from fusion.metrics import interpolate_truth
 from fusion.plugin import Measurement, MeasurementContext, PluginError, create_plugin
 from fusion.recording import Recording, UwbData, read_recording
@@ -154,6 +156,27 @@ def test_h_matches_numerical_differentiation() -> None:
         np.testing.assert_allclose(m.H, numeric, atol=1e-5, err_msg=f"anchor {k}")
         assert m.H[0, bias_slice.start + k] == -1.0
         assert np.count_nonzero(m.H[0, bias_slice]) == 1
+
+
+def test_a_slow_machine_considers_the_heading_of_the_lever_arm() -> None:
+    """Under ``filter.observable_force`` (a slow machine) the range update keeps the lever
+    arm's heading column in H (its uncertainty enters S) but considers the heading: the
+    update leaves the yaw and the vertical gyro bias alone, as no turn of the lever arm has
+    informed them. A fast platform keeps it as information."""
+    layout = layout_with(_bias_plugin(TRUE_BIAS).state_blocks())
+    yaw = layout.slice(ATTITUDE).start + 2
+    ctx = perturbed_context(layout, np.zeros(layout.dim), position_enu=P_TRUE, c_b_n=C_B_N)
+    slow = _bias_plugin(TRUE_BIAS).measure(0, ctx)
+    fast = _bias_plugin(TRUE_BIAS).measure(0, replace(ctx, observable_force=False))
+    assert slow is not None and fast is not None
+    assert slow.consider == (yaw,) and fast.consider == ()
+    assert slow.H[0, yaw] != 0.0
+    np.testing.assert_array_equal(slow.H, fast.H)
+    kf = KalmanFilter(np.zeros(layout.dim), ctx.covariance.copy())
+    kf.update(slow.z + 0.1, slow.H, slow.R, consider=slow.consider)
+    assert kf.x[yaw] == 0.0 and kf.P[yaw, yaw] == ctx.covariance[yaw, yaw]
+    gyro_z = layout.slice(GYRO_BIAS).start + 2
+    assert kf.P[gyro_z, gyro_z] == ctx.covariance[gyro_z, gyro_z]
 
 
 def test_epoch_grid_takes_the_tag_back_to_the_range_time() -> None:
