@@ -27,9 +27,8 @@ Tightly coupled ranges (:class:`UwbRanges`)
     through a turn of the lever arm; a slow machine barely turns, and what the column then
     sees turning is the nominal attitude itself — its feedback corrections and the drift of
     an estimated vertical gyro bias — so that the heading and the vertical gyro bias were
-    learned from nothing (a random world without any heading source: the bias σ fell from
-    1000 to 64 °/h in 10 min while its estimate was 870 °/h wrong, the yaw 138° off at a σ
-    of 8°). Under ``filter.observable_force`` (a slow machine) the heading is therefore a
+    learned from nothing (docs/design/2026-11-26-unseen-worlds.md, "UWB: mirror solutions").
+    Under ``filter.observable_force`` (a slow machine) the heading is therefore a
     consider state of the range update (:attr:`fusion.plugin.Measurement.consider`): its
     uncertainty enters S and, through its correlations, the position's σ, but the update
     does not correct it. A fast platform (``observable_force: false``) keeps the column as
@@ -735,8 +734,9 @@ def least_squares_solution(
         χ²(1) quantile of a range's residual beyond which it is dropped from its window's fit
         (None: every range enters the fit).
     log
-        When given, receives one record per range of the windows that gave a fix: its
-        squared standardized residual and whether the gate kept it.
+        When given, receives one record per range of the windows that were solved: its
+        squared standardized residual and whether the gate kept it (a window without a fix:
+        every range rejected, residual NaN).
 
     Returns
     -------
@@ -797,7 +797,10 @@ def least_squares_solution(
             sigma,
             gate,
         )
-        if fit is None:
+        if fit is None:  # no fit, or the gate left too few anchors: none of them used
+            if log is not None:
+                for t_k in t[sel]:
+                    log.record(float(t_k), math.nan, 1, False, False)
             continue
         tag, cov = fit.position, branch.resolve(fit, prediction, spread)
         used, squared = fit.used, fit.squared

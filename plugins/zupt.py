@@ -47,10 +47,11 @@ running, set it to the measured standstill vibration velocity.
 Zero angular rate (ZARU, option ``zero_angular_rate``): at a ZUPT epoch the machine does not
 turn either, so the gyro mean since the previous epoch is the earth rate plus the bias
 (:mod:`plugins.zaru`): every gyro bias, the vertical one included, becomes observable at rest.
-With ``zero_velocity: false`` the epoch gives the ZARU alone: for a machine that can creep
-too smoothly for the IMU to tell it from a stop (a shearer hauling at a few m/min without
-cutting) but never turns at that pace, so that a wrong "stationary" costs nothing, where a
-zero velocity would hold the position while the machine drives on.
+With ``zero_velocity: false`` the epoch gives the ZARU without the zero velocity (and the
+motion constraint, when one is configured, at every epoch): for a machine that can creep too
+smoothly for the IMU to tell it from a stop (a shearer hauling at a few m/min without
+cutting) but never turns or slides sideways at that pace, so that a wrong "stationary" costs
+nothing, where a zero velocity would hold the position while the machine drives on.
 
 Epochs and delay: epochs are a regular grid at ``update_rate_hz`` on the IMU clock; the epoch at
 ``t`` uses the label of the last IMU sample at or before ``t``. In causal mode that label is
@@ -353,4 +354,8 @@ class Zupt(Plugin):
             return zupt
         t = self._epochs[index]
         zaru = self.zero_rate.measure(t - 1.0 / self.options.update_rate_hz, t, ctx)
-        return zupt.stacked_with(zaru) if self.options.zero_velocity else zaru
+        if self.options.zero_velocity:
+            return zupt.stacked_with(zaru)
+        # The detector may be wrong about a creeping machine: the constraint holds either way.
+        constraint = self.constraint.measure(index, ctx) if self.constraint is not None else None
+        return zaru if constraint is None else constraint.stacked_with(zaru)

@@ -131,6 +131,33 @@ def test_motion_constraint_while_moving() -> None:
     assert alone.measure(int(moving[0]), perturbed_context(layout_with(()), np.zeros(15))) is None
 
 
+def test_zero_angular_rate_alone_keeps_the_constraint_at_a_standstill() -> None:
+    """``zero_velocity: false``: a "stationary" epoch gives the ZARU rows and, with a motion
+    constraint, its rows too (the detector may take a creeping machine for a stop: the
+    constraint and a zero turn rate hold either way, a zero velocity would not); without the
+    ZARU the option is refused, as it would leave nothing to update."""
+    rec = static_recording(spec={**SEED002_SPEC, "gyro_bias_deg_h": 720.0})
+    plugin = Zupt(
+        "zupt",
+        Zupt.Options(zero_velocity=False, zero_angular_rate=True, motion_constraint={}),
+        rec,
+    )
+    layout = layout_with(plugin.state_blocks())
+    velocity = np.array([0.04, 0.1, 0.0])
+    ctx = perturbed_context(layout, np.zeros(layout.dim), velocity=velocity)
+    assert plugin.zupt_epoch[50]
+    m = plugin.measure(50, ctx)
+    assert m is not None and m.z.shape == (5,)  # lateral and vertical velocity, then ZARU
+    np.testing.assert_allclose(m.z[:2], velocity[[0, 2]], atol=1e-12)
+    assert np.all(m.H[:2, layout.slice("velocity")] @ np.ones(3) != 0.0)
+    assert np.all(m.H[2:, layout.slice("velocity")] == 0.0)
+    bare = Zupt("zupt", Zupt.Options(zero_velocity=False, zero_angular_rate=True), rec)
+    bare_m = bare.measure(50, perturbed_context(layout_with(()), np.zeros(15)))
+    assert bare_m is not None and bare_m.z.shape == (3,)
+    with pytest.raises(PluginError, match="zero_velocity: false leaves nothing"):
+        create_plugin("zupt", "z", {"zero_velocity": False}, rec, ("plugins", 0))
+
+
 def test_odometer_rest_withholds_zupts_while_the_encoder_creeps() -> None:
     """A machine creeping off at mm/s is still to the IMU detector; with ``odometer_rest_mps``
     an epoch needs every encoder reading of the past ``guard_s`` below that speed."""
