@@ -361,12 +361,8 @@ class UwbRanges(Plugin):
             return None
         # Of the fit and its mirror image (three anchors, or more in one plane), the one
         # nearer the SINS: it is lost by metres, not by the anchors' distance to their plane.
-        best = min(cost for _, _, cost in found)
         margin = chi2_threshold(1, self.options.adaptive_screen_probability)
-        position, covariance, _ = min(
-            (fit for fit in found if fit[2] <= best + margin),
-            key=lambda fit: float(np.linalg.norm(fit[0] - guess)),
-        )
+        position, covariance, _ = _plausible(found, margin, guess)[0]
         return position, covariance
 
     def noise_sigma(self) -> NDArray[np.float64]:
@@ -541,17 +537,21 @@ def _predicted_tag(
     tags: list[NDArray[np.float64]],
     weights: list[float],
     t: float,
-    span: float,
+    options: LeastSquaresOptions,
 ) -> tuple[NDArray[np.float64], float]:
     """Where the tag is expected at ``t`` and the variance (m², summed over the axes) of that
-    guess: the weighted line through the fixes of the last ``span`` seconds (weights
-    1/tr(cov): an ambiguous fix barely counts), extrapolated by at most ``span``; their
-    weighted mean when there are fewer than three. ``times`` is not empty."""
+    guess: the weighted line through the fixes of the last ``velocity_span_s`` (weights
+    1/tr(cov): an ambiguous fix barely counts), extrapolated by at most that span; their
+    weighted mean when there are fewer than three. The variance is the weighted mean's plus
+    ``max_speed_mps`` times the time of the windows without a fix, squared. ``times`` is
+    not empty."""
+    span = options.velocity_span_s
+    gap = max(t - times[-1] - options.window_s, 0.0)  # windows without a fix
     first = bisect.bisect_left(times, times[-1] - span)
     w = np.asarray(weights[first:])
     pp = np.asarray(tags[first:])
     centre = w @ pp / w.sum()
-    variance = 1.0 / float(w.sum())
+    variance = 1.0 / float(w.sum()) + (options.max_speed_mps * gap) ** 2
     if w.size < 3:
         return centre, variance
     tt = np.asarray(times[first:]) - times[-1]
@@ -568,6 +568,10 @@ def _mirrored(point: NDArray[np.float64], anchors: NDArray[np.float64]) -> NDArr
     centre = distinct.mean(axis=0)
     normal = np.linalg.svd(distinct - centre)[2][-1]
     return point - 2.0 * float((point - centre) @ normal) * normal
+
+
+_Candidate = tuple[NDArray[np.float64], NDArray[np.float64], float]
+"""One Gauss–Newton solution of a window: position, covariance, χ²."""
 
 
 @dataclass(frozen=True)
@@ -616,11 +620,7 @@ def _window_fix(
         solutions = _solutions(anchors[used], ranges[used], prediction, height, options, sigma)
         if not solutions:
             return None
-        best = min(cost for _, _, cost in solutions)
-        plausible = sorted(
-            (fit for fit in solutions if fit[2] <= best + margin),
-            key=lambda fit: float(np.linalg.norm(fit[0] - prediction)),
-        )
+        plausible = _plausible(solutions, margin, prediction)
         p, cov, cost = plausible[0]
         squared = ((ranges - np.linalg.norm(p - anchors, axis=1)) / sigma) ** 2
         worst = int(np.argmax(np.where(used, squared, -1.0)))
@@ -644,11 +644,11 @@ def _solutions(
     height: tuple[float, float] | None,
     options: LeastSquaresOptions,
     sigma: float,
-) -> list[tuple[NDArray[np.float64], NDArray[np.float64], float]]:
+) -> list[_Candidate]:
     """Gauss–Newton solutions (position, covariance at ``sigma``, χ²) from the prediction,
     from its mirror image and from the first solution's mirror image (both starts may fall
     into one basin)."""
-    found: list[tuple[NDArray[np.float64], NDArray[np.float64], float]] = []
+    found: list[_Candidate] = []
     scale = (sigma / options.sigma_range_m) ** 2
     for start in (prediction, _mirrored(prediction, anchors), None):
         if start is None:
@@ -659,6 +659,17 @@ def _solutions(
         if fit is not None:
             found.append((fit[0], fit[1] * scale, _chi2(fit[0], anchors, ranges, height, sigma)))
     return found
+
+
+def _plausible(
+    solutions: list[_Candidate], margin: float, target: NDArray[np.float64]
+) -> list[_Candidate]:
+    """The solutions whose χ² is within ``margin`` of the best, nearest ``target`` first."""
+    best = min(cost for _, _, cost in solutions)
+    return sorted(
+        (fit for fit in solutions if fit[2] <= best + margin),
+        key=lambda fit: float(np.linalg.norm(fit[0] - target)),
+    )
 
 
 def _apart(a: NDArray[np.float64], b: NDArray[np.float64], options: LeastSquaresOptions) -> bool:
@@ -781,9 +792,7 @@ def least_squares_solution(
         t_mean = float(np.mean(t[sel]))
         sigma = noise.sigma(t_mean)
         if out_t:
-            prediction, spread = _predicted_tag(out_t, out_p, out_w, t_mean, opts.velocity_span_s)
-            gap = max(t_mean - out_t[-1] - opts.window_s, 0.0)  # windows without a fix
-            spread += (opts.max_speed_mps * gap) ** 2
+            prediction, spread = _predicted_tag(out_t, out_p, out_w, t_mean, opts)
         else:
             prediction, spread = tag, float(np.sum(np.square(init.sigma.position_m)))
         spread = branch.spread(spread)
