@@ -259,14 +259,20 @@ def test_face_end_anchors_in_face_coordinates(tmp_path: Path) -> None:
 def test_plot_truth(tmp_path: Path) -> None:
     from fusion.sim.plot import plot_truth
 
-    out = simulate("seed002-rectangle", tmp_path / "r", seed=0)
+    out = simulate("seed002-rectangle", tmp_path / "r", seed=0, overrides=["duration_s=150"])
     png = plot_truth(out, tmp_path / "truth.png")
     assert png.exists() and png.stat().st_size > 10_000
     out2 = simulate(
         "longwall-200m",
         tmp_path / "f",
         seed=0,
-        overrides=["face.length_m=20", "face.cycles=3", "static_start_s=10"],
+        overrides=[
+            "face.length_m=20",
+            "face.cycles=2",
+            "static_start_s=10",
+            "uwb.rate_hz=5",  # the figure is of the truth: the sensors only cost time
+            "imu.rate_hz=50",
+        ],
     )
     png2 = plot_truth(out2, tmp_path / "face.png")
     assert png2.exists() and png2.stat().st_size > 10_000
