@@ -170,17 +170,18 @@ SLIP = "faults=[{kind: odometer_slip, t_start: 340, t_end: 355, slip_ratio: 0.3}
 
 def test_full_afkf_takes_in_a_slip(tmp_path: Path) -> None:
     """longwall-200m, a 30 % slip for 15 s, 25 m from the gate (UWB in reach, each anchor at
-    40 Hz: at 20 Hz the jump is reported 2.5 s after the onset, at 10 Hz 3.5 s): full_afkf
-    reports the jump within two seconds of the onset and the jump back after the end, isolates
-    nothing, and its maximum horizontal error stays within 1.3× that of the same run without
-    the slip."""
-    clean, slipping = clean_and_faulty(tmp_path, SLIP, uwb_rate_hz=40.0)
+    20 Hz, the top of the random worlds' round rates: the jump is reported 2.5 s after the
+    onset; at the preset's 40 Hz within 2 s, at 10 Hz 3.5 s): full_afkf reports the jump
+    within three seconds of the onset and the jump back after the end, isolates nothing, and
+    its maximum horizontal error stays within 1.3× that of the same run without the slip."""
+    clean, slipping = clean_and_faulty(tmp_path, SLIP, uwb_rate_hz=20.0)
     config = load_config(CONFIGS / "full_afkf.yaml")
     result = Engine(config, slipping).run()
     events = [(e.action, e.t, e.reason) for e in result.faults]
+    print(events)
     assert [a for a, _, _ in events] == [JUMP, JUMP], events
     window = config.filter.jump_detection.window_s
-    assert 340.0 <= events[0][1] <= 342.0
+    assert 340.0 <= events[0][1] <= 343.0
     assert 355.0 <= events[1][1] <= 355.0 + window and "back to rest" in events[1][2]
     nominal = max_horizontal(Engine(config, clean).run(), clean)
     slipped = max_horizontal(result, slipping)
