@@ -34,6 +34,22 @@ stationary — measured on ``seed002-rectangle`` (tests/test_zupt_plugin.py). A 
 would pin a moving machine to zero, so a ZUPT is applied only where the label has been
 stationary for ``guard_s`` on both sides (offline) or for the past ``guard_s`` (causal).
 
+Scatter test (option ``scatter_test``): a machine that moves at a steady pace feels no
+acceleration, so the two conditions above cannot tell it from one at rest, and their bands
+must also cover the constant biases (tens of mg, hundreds of °/h), in which a cutting
+vibration of a few mg and tenths of °/s hides: a haul taken for a stop has its velocity
+pinned to zero at a σ of millimetres per second while it drives on. The scatter of the
+samples about their own mean over the median window carries no bias: at rest it is the
+sensor's white noise alone. With ``n`` samples in the
+window (trailing or centred like the median) and ``σ`` the datasheet noise of one sample
+scaled by :data:`NOISE_MARGIN`, a sample is stationary only if, for the accelerometer and the
+gyro each, ::
+
+    Σ_axes Σ_window (x − x̄)² / σ²  ≤  χ²_{3(n−1)}(1 − SCATTER_FALSE_ALARM)
+
+A stop with the conveyor running beside it may fail the test: the ZUPT is then lost, which
+costs its information and nothing else.
+
 Measurement (seed 002 eq. 12): at an epoch where the shearer stands, ``v = 0``, so with
 ``ṽ = v + δv``::
 
@@ -89,7 +105,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 from pydantic import Field, field_validator, model_validator
-from scipy.ndimage import median_filter, minimum_filter1d
+from scipy.ndimage import median_filter, minimum_filter1d, uniform_filter1d
 from scipy.stats import chi2, norm
 
 from fusion.earth import OMEGA_IE, normal_gravity
@@ -103,6 +119,11 @@ BIAS_COVERAGE = 0.999
 """Probability with which the threshold band covers the constant IMU biases."""
 SAMPLE_FALSE_ALARM = 0.1
 """Probability that white noise alone flags one stationary sample as moving."""
+SCATTER_FALSE_ALARM = 1e-3
+"""Probability that white noise alone fails the scatter test of a stationary window."""
+NOISE_MARGIN = 1.5
+"""Factor on the datasheet noise in the scatter test: a unit's white noise may exceed its
+datasheet's typical figure (the random worlds' units: up to 1.25×)."""
 
 
 @dataclass(frozen=True)
@@ -115,14 +136,20 @@ class StationaryThresholds:
         Band of the specific-force norm (m/s²).
     gyro_max_rps
         Bound of the angular-rate norm (rad/s).
+    accel_noise_mps2, gyro_noise_rps
+        White noise of one sample (1σ per axis) of the scatter test; None: no scatter test.
     """
 
     accel_min_mps2: float
     accel_max_mps2: float
     gyro_max_rps: float
+    accel_noise_mps2: float | None = None
+    gyro_noise_rps: float | None = None
 
 
-def default_thresholds(spec: ImuSpec, rate_hz: float, gravity_mps2: float) -> StationaryThresholds:
+def default_thresholds(
+    spec: ImuSpec, rate_hz: float, gravity_mps2: float, scatter_test: bool = False
+) -> StationaryThresholds:
     """Thresholds from gravity and the IMU datasheet (see the module docstring).
 
     Parameters
@@ -133,6 +160,8 @@ def default_thresholds(spec: ImuSpec, rate_hz: float, gravity_mps2: float) -> St
         IMU sample rate (the white noise of one sample is ``N·√rate``).
     gravity_mps2
         Gravity magnitude at the site.
+    scatter_test
+        Also the white noise of one sample for the scatter test, times :data:`NOISE_MARGIN`.
 
     Returns
     -------
@@ -156,7 +185,13 @@ def default_thresholds(spec: ImuSpec, rate_hz: float, gravity_mps2: float) -> St
         + math.sqrt(chi2.ppf(BIAS_COVERAGE, 3)) * imu.gyro_bias
         + math.sqrt(chi2.ppf(1.0 - SAMPLE_FALSE_ALARM, 3)) * imu.gyro_arw * root_rate
     )
-    return StationaryThresholds(gravity_mps2 - band, gravity_mps2 + band, gyro_max)
+    return StationaryThresholds(
+        gravity_mps2 - band,
+        gravity_mps2 + band,
+        gyro_max,
+        NOISE_MARGIN * imu.accel_vrw * root_rate if scatter_test else None,
+        NOISE_MARGIN * imu.gyro_arw * root_rate if scatter_test else None,
+    )
 
 
 def window_samples(window_s: float, rate_hz: float) -> int:
@@ -204,6 +239,7 @@ def detect_stationary(
     ndarray of bool, shape (N,)
     """
     rate = 1.0 / float(np.median(np.diff(t)))
+    size = window_samples(window_s, rate)
     f = np.linalg.norm(accel, axis=1)
     w = np.linalg.norm(gyro, axis=1)
     raw = (
@@ -211,7 +247,23 @@ def detect_stationary(
         & (f < thresholds.accel_max_mps2)
         & (w < thresholds.gyro_max_rps)
     )
-    return _sliding(raw, window_samples(window_s, rate), causal, "median")
+    noise = (thresholds.accel_noise_mps2, thresholds.gyro_noise_rps)
+    if size > 1 and noise[0] is not None and noise[1] is not None:
+        raw &= _quiet(accel, noise[0], size, causal) & _quiet(gyro, noise[1], size, causal)
+    return _sliding(raw, size, causal, "median")
+
+
+def _quiet(
+    x: NDArray[np.float64], sigma: float, size: int, causal: bool = True
+) -> NDArray[np.bool_]:
+    """Samples whose window of ``size`` (trailing or centred) scatters about its own mean no
+    more than white noise of ``sigma`` per axis would (the module's scatter test)."""
+    origin = (size - 1) // 2 if causal else 0
+    centred = x - np.median(x, axis=0)  # running sums of small numbers: no cancellation
+    mean = uniform_filter1d(centred, size, axis=0, origin=origin, mode="nearest")
+    square = uniform_filter1d(centred**2, size, axis=0, origin=origin, mode="nearest")
+    scatter = size * np.sum(np.maximum(square - mean**2, 0.0), axis=1) / sigma**2
+    return np.asarray(scatter <= chi2.ppf(1.0 - SCATTER_FALSE_ALARM, 3 * (size - 1)))
 
 
 class ZuptOptions(PluginOptions):
@@ -225,6 +277,11 @@ class ZuptOptions(PluginOptions):
     guard_s: float = Field(1.0, ge=0, description="stationary this long around a ZUPT epoch")
     update_rate_hz: float = Field(10.0, gt=0, description="epoch grid on the IMU clock")
     sigma_zero_velocity_mps: float = Field(1e-5, gt=0, description="ZUPT noise, 1σ per axis")
+    scatter_test: bool = Field(
+        False,
+        description="stationary also needs the samples' scatter over window_s within the"
+        " datasheet white noise (a machine moving steadily with a little vibration)",
+    )
     zero_angular_rate: bool = Field(
         False, description="also a zero-angular-rate update (ZARU) on the gyro biases at rest"
     )
@@ -317,7 +374,7 @@ class Zupt(Plugin):
     @staticmethod
     def _thresholds(options: ZuptOptions, recording: Recording) -> StationaryThresholds:
         given = (options.accel_min_mps2, options.accel_max_mps2, options.gyro_max_dps)
-        if all(v is not None for v in given):
+        if all(v is not None for v in given) and not options.scatter_test:
             lo, hi, w = (float(v) for v in given if v is not None)
             return StationaryThresholds(lo, hi, math.radians(w))
         meta = recording.meta
@@ -325,13 +382,16 @@ class Zupt(Plugin):
             raise ValueError(
                 "meta.yaml has no imu.spec to derive the ZUPT thresholds from: give"
                 " accel_min_mps2, accel_max_mps2 and gyro_max_dps in the plugin options"
+                " (scatter_test needs the datasheet noise)"
             )
         gravity = float(normal_gravity(math.radians(meta.origin.lat_deg), meta.origin.height_m))
-        d = default_thresholds(meta.imu.spec, meta.imu.rate_hz, gravity)
+        d = default_thresholds(meta.imu.spec, meta.imu.rate_hz, gravity, options.scatter_test)
         return StationaryThresholds(
             d.accel_min_mps2 if options.accel_min_mps2 is None else options.accel_min_mps2,
             d.accel_max_mps2 if options.accel_max_mps2 is None else options.accel_max_mps2,
             d.gyro_max_rps if options.gyro_max_dps is None else math.radians(options.gyro_max_dps),
+            d.accel_noise_mps2,
+            d.gyro_noise_rps,
         )
 
     def state_blocks(self) -> tuple[StateBlock, ...]:
