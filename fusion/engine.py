@@ -40,6 +40,8 @@ from fusion.encoder import combine_readings
 from fusion.error_model import (
     ACCEL_BIAS,
     GYRO_BIAS,
+    POSITION,
+    VELOCITY,
     ErrorModel,
     ImuNoise,
     SpecificForceFilter,
@@ -192,6 +194,17 @@ def _event_schedule(
     t_all = np.concatenate(times)
     order = np.argsort(t_all, kind="stable")
     return t_all[order], np.concatenate(sources)[order], np.concatenate(indices)[order]
+
+
+def _holds(h: NDArray[np.float64], layout: StateLayout) -> bool:
+    """Whether measurement rows ``h`` determine the velocity or the position in all three
+    axes (an odometer with its constraint rows, a zero velocity, a position fix): the
+    updates that keep a SINS from drifting off."""
+    if h.shape[0] < 3:
+        return False
+    return any(
+        np.linalg.matrix_rank(h[:, layout.slice(block)]) == 3 for block in (VELOCITY, POSITION)
+    )
 
 
 class Engine:
@@ -541,7 +554,7 @@ class Engine:
         signature = jumps.innovation_signature(bank, src, m.H) if jumps is not None else None
         res = kf.update(m.z, m.H, m.R, self.gates[src], shared, correlated, m.consider)
         bank.record(src, t, res, m.suspect)
-        if res.accepted:
+        if res.accepted and _holds(m.H, layout):
             self._last_accepted[src] = t
         lock = self._locks[src]
         if lock is not None and lock.observe(t, res.accepted) and self._alone(src, t):
@@ -559,10 +572,13 @@ class Engine:
         return res.accepted
 
     def _alone(self, src: int, t: float) -> bool:
-        """Whether no other plugin had an update accepted within the lock window before ``t``:
-        only then is a plugin whose updates are all rejected taken to show a filter that lost
-        its way (one that other sensors still hold is the suspect itself: a burst of NLOS on
-        every anchor, which re-acquiring from would have moved the SINS by the NLOS bias)."""
+        """Whether no other plugin had an update accepted within the lock window before ``t``
+        that holds the filter (:func:`_holds`): only then is a plugin whose updates are all
+        rejected taken to show a filter that lost its way (one that other sensors still hold
+        is the suspect itself: a burst of NLOS on every anchor, which re-acquiring from would
+        have moved the SINS by the NLOS bias). A motion constraint or a ZARU does not hold it:
+        the SINS drifts along the track under them, and a UWB tag back in reach of the
+        anchors after the middle of the face found every range rejected for good."""
         since = t - self.config.filter.lock_window_s
         return all(last <= since for k, last in enumerate(self._last_accepted) if k != src)
 

@@ -8,12 +8,15 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from fusion.attitude import dcm_from_euler
 from fusion.config import load_config
-from fusion.engine import Engine
+from fusion.engine import Engine, _holds
+from fusion.error_model import GYRO_BIAS, POSITION, VELOCITY
 from fusion.lock import REACQUIRE, LockMonitor
 from fusion.metrics import interpolate_truth
 from fusion.recording import read_recording
 from fusion.sim.simulate import simulate
+from tests.plugin_support import layout_with
 
 CONFIGS = Path(__file__).resolve().parents[1] / "configs"
 
@@ -28,6 +31,28 @@ def test_monitor_needs_a_whole_window_of_rejections() -> None:
     again = [monitor.observe(t, accepted=False) for t in times + 10.0]
     assert times[again.index(True)] == pytest.approx(3.0, abs=0.11)  # a full window after reset
     assert monitor.last_accepted == pytest.approx(1.9)
+
+
+def test_only_updates_that_fix_velocity_or_position_hold_the_filter() -> None:
+    """Lost lock is declared only while no other source holds the filter (Engine._alone): a
+    motion constraint (two velocity rows) with a ZARU does not, since the SINS drifts along
+    the track under it (sins_uwb never re-acquired at the far face end: 34 km off for an hour
+    on a random world); an odometer with its constraint rows, a zero velocity and a position
+    fix do."""
+    layout = layout_with(())
+    v, p, bg = (layout.slice(b) for b in (VELOCITY, POSITION, GYRO_BIAS))
+    constraint_and_zaru = np.zeros((5, layout.dim))
+    constraint_and_zaru[0, v] = [0.0, 1.0, 0.0]
+    constraint_and_zaru[1, v] = [0.0, 0.0, 1.0]
+    constraint_and_zaru[2:, bg] = np.eye(3)
+    odometer = np.zeros((3, layout.dim))
+    odometer[:, v] = dcm_from_euler(0.1, 0.2, 0.3)
+    fix = np.zeros((3, layout.dim))
+    fix[:, p] = np.eye(3)
+    one_range = np.zeros((1, layout.dim))
+    one_range[0, p] = [0.6, 0.8, 0.0]
+    assert not _holds(constraint_and_zaru, layout) and not _holds(one_range, layout)
+    assert _holds(odometer, layout) and _holds(fix, layout)
 
 
 def test_sins_uwb_reacquires_after_an_outage(tmp_path: Path) -> None:
