@@ -299,7 +299,7 @@ class Engine:
             LockMonitor(cfg.lock_window_s, cfg.lock_min_updates) if gate is not None else None
             for gate in self.gates
         ]
-        self._last_accepted = [-math.inf] * len(self.plugins)
+        self._last_held = [-math.inf] * len(self.plugins)
         states = jump_states(self.layout)
         jumps = (
             JumpDetector(self.layout, states, cfg.jump_detection, self._tell_owner)
@@ -555,7 +555,7 @@ class Engine:
         res = kf.update(m.z, m.H, m.R, self.gates[src], shared, correlated, m.consider)
         bank.record(src, t, res, m.suspect)
         if res.accepted and _holds(m.H, layout):
-            self._last_accepted[src] = t
+            self._last_held[src] = t
         lock = self._locks[src]
         if lock is not None and lock.observe(t, res.accepted) and self._alone(src, t):
             lock.reset()
@@ -580,7 +580,7 @@ class Engine:
         the SINS drifts along the track under them, and a UWB tag back in reach of the
         anchors after the middle of the face found every range rejected for good."""
         since = t - self.config.filter.lock_window_s
-        return all(last <= since for k, last in enumerate(self._last_accepted) if k != src)
+        return all(last <= since for k, last in enumerate(self._last_held) if k != src)
 
     def _reacquire(self, src: int, t: float, sins: Strapdown, bank: FilterBank) -> bool:
         """Move the SINS to where plugin ``src`` alone puts it, restart position and velocity

@@ -40,10 +40,9 @@ must also cover the constant biases (tens of mg, hundreds of °/h), in which a c
 vibration of a few mg and tenths of °/s hides: a haul taken for a stop has its velocity
 pinned to zero at a σ of millimetres per second while it drives on. The scatter of the
 samples about their own mean over the median window carries no bias: at rest it is the
-sensor's white noise alone. With ``n`` samples in the
-window (trailing or centred like the median) and ``σ`` the datasheet noise of one sample
-scaled by :data:`NOISE_MARGIN`, a sample is stationary only if, for the accelerometer and the
-gyro each, ::
+sensor's white noise alone. With ``n`` samples in the window (trailing or centred like the
+median) and ``σ`` the datasheet noise of one sample scaled by :data:`NOISE_MARGIN`, a sample
+is stationary only if, for the accelerometer and the gyro each, ::
 
     Σ_axes Σ_window (x − x̄)² / σ²  ≤  χ²_{3(n−1)}(1 − SCATTER_FALSE_ALARM)
 
@@ -227,7 +226,7 @@ def detect_stationary(
     gyro, accel : ndarray, shape (N, 3)
         Angular rate (rad/s) and specific force (m/s²) in any body frame.
     thresholds
-        ``S_a,min``, ``S_a,max``, ``S_ω``.
+        ``S_a,min``, ``S_a,max``, ``S_ω``, and the scatter test's noise when it has one.
     window_s
         Median window ``l`` in seconds (rounded to an odd number of samples; 0: no filter).
     causal
@@ -253,9 +252,7 @@ def detect_stationary(
     return _sliding(raw, size, causal, "median")
 
 
-def _quiet(
-    x: NDArray[np.float64], sigma: float, size: int, causal: bool = True
-) -> NDArray[np.bool_]:
+def _quiet(x: NDArray[np.float64], sigma: float, size: int, causal: bool) -> NDArray[np.bool_]:
     """Samples whose window of ``size`` (trailing or centred) scatters about its own mean no
     more than white noise of ``sigma`` per axis would (the module's scatter test)."""
     origin = (size - 1) // 2 if causal else 0
