@@ -196,15 +196,24 @@ def _event_schedule(
     return t_all[order], np.concatenate(sources)[order], np.concatenate(indices)[order]
 
 
+HOLD_CONDITION = 1e-9
+"""det(HᵀH) over a block, relative to trace(HᵀH)³, above which rows ``H`` fix the block in
+all three axes (:func:`_holds`); round-off leaves ≈ 10⁻¹⁶ in a rank-deficient block."""
+
+
 def _holds(h: NDArray[np.float64], layout: StateLayout) -> bool:
     """Whether measurement rows ``h`` determine the velocity or the position in all three
     axes (an odometer with its constraint rows, a zero velocity, a position fix): the
     updates that keep a SINS from drifting off."""
     if h.shape[0] < 3:
         return False
-    return any(
-        np.linalg.matrix_rank(h[:, layout.slice(block)]) == 3 for block in (VELOCITY, POSITION)
-    )
+    for block in (VELOCITY, POSITION):
+        columns = h[:, layout.slice(block)]
+        gram = columns.T @ columns
+        scale = np.trace(gram)
+        if scale > 0.0 and np.linalg.det(gram) > HOLD_CONDITION * scale**3:
+            return True
+    return False
 
 
 class Engine:
@@ -300,6 +309,7 @@ class Engine:
             for gate in self.gates
         ]
         self._last_held = [-math.inf] * len(self.plugins)
+        self._watched = any(lock is not None for lock in self._locks)  # else _alone is unasked
         states = jump_states(self.layout)
         jumps = (
             JumpDetector(self.layout, states, cfg.jump_detection, self._tell_owner)
@@ -554,7 +564,7 @@ class Engine:
         signature = jumps.innovation_signature(bank, src, m.H) if jumps is not None else None
         res = kf.update(m.z, m.H, m.R, self.gates[src], shared, correlated, m.consider)
         bank.record(src, t, res, m.suspect)
-        if res.accepted and _holds(m.H, layout):
+        if res.accepted and self._watched and _holds(m.H, layout):
             self._last_held[src] = t
         lock = self._locks[src]
         if lock is not None and lock.observe(t, res.accepted) and self._alone(src, t):

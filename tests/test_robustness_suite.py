@@ -86,11 +86,15 @@ def test_suites_are_registered_with_their_ranges() -> None:
     assert "`face_length_m` | 60 – 300" in text and "`sins_uwb`" in text
 
 
+SMOKE_WORLDS = 12
+"""Worlds of the CI smoke run (the ``robustness`` benchmark runs ≥ 20 of full length)."""
+
+
 @pytest.fixture(scope="module")
 def smoke_rows() -> list[dict[str, Any]]:
-    """The smoke suite's rows: 20 short random worlds, :data:`SMOKE_CONFIGS`."""
+    """The smoke suite's rows: :data:`SMOKE_WORLDS` short random worlds, :data:`SMOKE_CONFIGS`."""
     start = time.perf_counter()
-    rows = collect(run_tasks(smoke_tasks(20, ()), jobs=2)).rows
+    rows = collect(run_tasks(smoke_tasks(SMOKE_WORLDS, ()), jobs=2)).rows
     print(f"smoke suite: {time.perf_counter() - start:.0f} s")
     return rows
 
@@ -104,7 +108,7 @@ def test_smoke_suite_completes_without_a_failed_run(smoke_rows: list[dict[str, A
     failed = [(r["seed"], r["method"], r.get("failure")) for r in forward if r.get("failed")]
     assert failed == [], failed
     assert {(r["seed"], r["method"]) for r in forward} == {
-        (s, c) for s in range(20) for c in SMOKE_CONFIGS
+        (s, c) for s in range(SMOKE_WORLDS) for c in SMOKE_CONFIGS
     }
     for axis in ("e", "n"):
         pooled = math.sqrt(
