@@ -58,6 +58,7 @@ from fusion.jumps import JumpDetector, JumpState, jump_states
 from fusion.kalman import KalmanFilter
 from fusion.lock import LOST_LOCK, REACQUIRE, LockMonitor
 from fusion.memory import release_freed_memory
+from fusion.observability import Observability, ObservabilityTracker
 from fusion.plugin import MeasurementContext, Plugin, create_plugin
 from fusion.recording import ImuSpec, Recording
 from fusion.rows import RowBuffer
@@ -96,6 +97,9 @@ class RunResult:
     (:func:`fusion.smoother.plausible_correction`): they keep the forward estimate."""
     screening: ScreeningReport = field(default_factory=lambda: ScreeningReport(enabled=False))
     """Implausible samples rejected per stream and rule before the run (fusion.screening)."""
+    observability: Observability | None = None
+    """Share of each state's prior variance the data removed (:mod:`fusion.observability`);
+    None for an architecture that estimates nothing (dead reckoning, standalone)."""
 
     @property
     def duration_s(self) -> float:
@@ -304,6 +308,7 @@ class Engine:
             imu.t, imu.gyro, imu.accel, self.initial_state(), coning_sculling=cfg.coning_sculling
         )
         bank = self.filter_bank()
+        observed = ObservabilityTracker(self.layout)
         self._locks = [
             LockMonitor(cfg.lock_window_s, cfg.lock_min_updates) if gate is not None else None
             for gate in self.gates
@@ -334,6 +339,7 @@ class Engine:
         out_t.append(t0)
         out_nav.append(sins.nav)
         out_cov.append(bank.position_covariance())
+        observed.sample(t0, bank.estimate()[1])
         smoother = self._smoother(bank)
         if smoother is not None:
             state = bank.smoothing_state()
@@ -364,6 +370,7 @@ class Engine:
                     qd = qd + self._gap_noise(next_gap, sins, f_n)
                     next_gap = next(gaps, None)
                 bank.predict(phi, qd)
+                observed.predict(phi, qd)
                 t_cov = te
                 if jumps is not None:
                     jumps.step(te, bank)
@@ -397,6 +404,8 @@ class Engine:
                 out_t.append(te)
                 out_nav.append(sins.nav)
                 out_cov.append(bank.position_covariance())
+                if observed.due(te):
+                    observed.sample(te, bank.estimate()[1])
             if progress is not None and (i // report_every) != (j // report_every):
                 progress(j / n_events)
             i = j
@@ -422,6 +431,7 @@ class Engine:
             smoother_peak_steps=smoother.peak_steps if smoother is not None else 0,
             smoother_rejected=smoother.rejected if smoother is not None else 0,
             screening=self.screening,
+            observability=observed.report(final_covariance),
         )
 
     def _gap_noise(

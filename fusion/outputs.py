@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -33,8 +34,13 @@ def write_outputs(
     truth = recording.truth
     if truth is not None:
         files["metrics"] = out / "metrics.json"
-        metrics = {name: compute_metrics(sol, truth) for name, sol in solutions.items()}
-        write_metrics_json({**metrics, "screening": result.screening.to_dict()}, files["metrics"])
+        metrics: dict[str, dict[str, Any]] = {
+            name: compute_metrics(sol, truth) for name, sol in solutions.items()
+        }
+        metrics["screening"] = result.screening.to_dict()
+        if result.observability is not None:
+            metrics["observability"] = result.observability.to_dict()
+        write_metrics_json(metrics, files["metrics"])
     if plots:
         from fusion import plots as figures
 
@@ -42,6 +48,10 @@ def write_outputs(
         files["plan"] = figures.plot_plan_view(result.solution, truth, out / "plan.png", title)
         if truth is not None:
             files["errors"] = figures.plot_errors(result.solution, truth, out / "errors.png", title)
+        if result.observability is not None and result.observability.t.size > 1:
+            files["observability"] = figures.plot_observability(
+                result.observability, out / "observability.png", title
+            )
     return files
 
 
@@ -91,6 +101,9 @@ def summary(result: RunResult, recording: Recording) -> str:
             f"estimate   {block.name}: {np.array2string(est, precision=6)} "
             f"± {np.array2string(sd, precision=6)}"
         )
+    if result.observability is not None:
+        lines.append("observed   share of each state's prior variance the data removed:")
+        lines += [f"           {line}" for line in result.observability.describe()]
     if recording.truth is not None:
         named = [("accuracy", sol)] + ([("smoothed", result.smoothed)] if result.smoothed else [])
         for label, solution in named:
