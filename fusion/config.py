@@ -177,6 +177,13 @@ class FilterOptions(_Strict):
         "observable_force): for a slow machine; off for a car, a foot or a hand, whose"
         " accelerations are real (with it a foot's ZUPT-aided track was 4× worse)",
     )
+    observability_constrained: bool = Field(
+        False,
+        description="keep a turn of the whole trajectory about the vertical unobservable to the"
+        " sources that cannot see one (ZUPT, ZARU, odometer, motion constraint): the heading"
+        " column of Φ and of their H is constrained (fusion.yaw_nullspace); for MEMS IMUs, which"
+        " cannot find north from the Earth's rate",
+    )
     discretization: Literal["series", "van_loan"] = "series"
     error_model: Literal["full", "low_speed"] = "full"
     coning_sculling: bool = True

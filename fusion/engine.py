@@ -66,6 +66,7 @@ from fusion.screening import ScreeningReport, screen_recording
 from fusion.smoother import WindowedSmoother
 from fusion.solution import Solution
 from fusion.strapdown import HGT, LAT, LON, NAV_SIZE, Q0, VEL, NavState, Strapdown
+from fusion.yaw_nullspace import constrain_rows, constrain_transition, turn_direction
 
 _log = logging.getLogger(__name__)
 ProgressCallback = Callable[[float], None]
@@ -315,6 +316,7 @@ class Engine:
         ]
         self._last_held = [-math.inf] * len(self.plugins)
         self._watched = any(lock is not None for lock in self._locks)  # else _alone is unasked
+        self._turn_prior = self._turn(self.layout, sins)
         states = jump_states(self.layout)
         jumps = (
             JumpDetector(self.layout, states, cfg.jump_detection, self._tell_owner)
@@ -366,6 +368,8 @@ class Engine:
                 if cfg.observable_force:
                     f_n = observable_force(f_n, sins.c_b_n, bank.common_covariance())
                 phi, qd = self.model.discrete(sins.nav, f_n, sins.c_b_n, dt)
+                if cfg.observability_constrained:
+                    phi = self._constrained(phi, sins)
                 while next_gap is not None and te > next_gap.t_start:
                     qd = qd + self._gap_noise(next_gap, sins, f_n)
                     next_gap = next(gaps, None)
@@ -433,6 +437,20 @@ class Engine:
             screening=self.screening,
             observability=observed.report(final_covariance),
         )
+
+    def _turn(self, layout: StateLayout, sins: Strapdown) -> NDArray[np.float64]:
+        """The error of a unit turn about the vertical through the frame's origin at the
+        nominal state (:func:`fusion.yaw_nullspace.turn_direction`)."""
+        nav = sins.nav
+        position = self.frame.point(float(nav[LAT]), float(nav[LON]), float(nav[HGT]))[0]
+        return turn_direction(layout, nav[VEL : VEL + 3], position)
+
+    def _constrained(self, phi: NDArray[np.float64], sins: Strapdown) -> NDArray[np.float64]:
+        """Φ that carries the turn at the last propagated state onto the turn at this one
+        (:func:`fusion.yaw_nullspace.constrain_transition`, with the prior estimates as the
+        observability-constrained EKF takes them)."""
+        before, self._turn_prior = self._turn_prior, self._turn(self.layout, sins)
+        return constrain_transition(phi, before, self._turn_prior, self.layout)
 
     def _gap_noise(
         self, gap: GapBridge, sins: Strapdown, f_n: NDArray[np.float64]
@@ -567,6 +585,8 @@ class Engine:
         m = plugin.measure(index, ctx)
         if m is None:
             return False
+        if self.config.filter.observability_constrained and plugin.turn_invariant:
+            m = replace(m, H=constrain_rows(m.H, self._turn(layout, sins), layout))
         correlated = m.correlated
         if correlated is not None:
             offset = self.stored_error_offsets[src]
