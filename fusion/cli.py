@@ -4,10 +4,13 @@ demo, plugins."""
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 import time
 from collections.abc import Sequence
 from pathlib import Path
+
+from fusion import __version__
 
 EXAMPLES = """\
 examples:
@@ -22,6 +25,12 @@ examples:
   fusion run --config configs/sins_only.yaml --recording rec/ --out out/
   fusion validate-config configs/sins_only.yaml
 """
+
+EXIT_BAD_INPUT = 2
+"""Exit status for a recording, configuration, scenario or dataset that breaks a rule (the
+message names the file, line or key); argparse uses 2 for bad arguments as well."""
+EXIT_INTERRUPTED = 130
+"""Exit status after Ctrl-C (128 + SIGINT, as a shell reports it)."""
 
 DEFAULT_DEMO_SCENARIO = "seed000-carrier"
 DEFAULT_DEMO_CONFIG = "sins_od_cpoem_rts"
@@ -178,6 +187,7 @@ def build_parser() -> argparse.ArgumentParser:
         epilog=EXAMPLES,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
+    parser.add_argument("--version", action="version", version=f"fusion {__version__}")
     sub = parser.add_subparsers(dest="command", required=True)
 
     run = sub.add_parser("run", help="fuse a recording with a configuration")
@@ -250,13 +260,20 @@ def main(argv: Sequence[str] | None = None) -> int:
     from fusion.importers import DatasetError
     from fusion.plugin import PluginError
     from fusion.recording import RecordingError
+    from fusion.sim.scenario import ScenarioError
 
     args = build_parser().parse_args(argv)
     try:
         return int(args.func(args))
-    except (ConfigError, RecordingError, PluginError, DatasetError) as exc:
+    except (ConfigError, RecordingError, PluginError, DatasetError, ScenarioError) as exc:
         print(f"error: {exc}", file=sys.stderr)
-        return 2
+        return EXIT_BAD_INPUT
+    except KeyboardInterrupt:
+        print(f"fusion {args.command}: interrupted", file=sys.stderr)
+        return EXIT_INTERRUPTED
+    except BrokenPipeError:  # the reader of stdout went away (`fusion plugins | head -1`)
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 0
 
 
 if __name__ == "__main__":
