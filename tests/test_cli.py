@@ -46,8 +46,12 @@ def test_a_reader_that_goes_away_is_not_an_error() -> None:
 
 def test_ctrl_c_stops_with_a_message_and_its_own_status(tmp_path: Path) -> None:
     """SIGINT during the 8-hour shift's simulation (≈ 80 s): status 130, one line."""
-    proc = _fusion("simulate", "longwall-shift", str(tmp_path / "rec"))
-    time.sleep(8.0)  # past the imports, inside the simulation
+    rec = tmp_path / "rec"
+    proc = _fusion("simulate", "longwall-shift", str(rec))
+    deadline = time.monotonic() + 60.0
+    while not rec.exists() and time.monotonic() < deadline:  # the simulation has begun
+        time.sleep(0.1)
+    time.sleep(0.5)
     proc.send_signal(signal.SIGINT)
     _, err = proc.communicate(timeout=60)
     assert proc.returncode == EXIT_INTERRUPTED, err

@@ -15,7 +15,7 @@ G = 9.81
 
 
 def _standstill(
-    fluctuation_mg: float, constrained: bool, seconds: float = 600.0
+    fluctuation_mg: float, constrained: bool, seconds: float = 300.0
 ) -> tuple[float, float, float, float]:
     """Covariance only, the engine's error model at rest, level, a zero-velocity update every
     0.1 s (σ 1 cm/s), the specific force in F gravity plus a white horizontal fluctuation;
