@@ -162,8 +162,7 @@ class KalmanFilter:
         self.x = phi @ self.x
         if self.columns.shape[1]:
             self.columns = phi @ self.columns
-        p = phi @ self.P @ phi.T + qd
-        self.P = 0.5 * (p + p.T)
+        self.P = propagate_covariance(self.P, phi, qd)
 
     def update(
         self,
@@ -320,6 +319,14 @@ class KalmanFilter:
         h = np.zeros((1, self.dim))
         h[0, index] = 1.0
         self.update(np.array([value]), h, np.array([[1e-12 * self.P[index, index]]]))
+
+
+def propagate_covariance(
+    p: NDArray[np.float64], phi: NDArray[np.float64], qd: NDArray[np.float64]
+) -> NDArray[np.float64]:
+    """``Φ P Φᵀ + Q_d``, symmetrized."""
+    propagated = phi @ p @ phi.T + qd
+    return 0.5 * (propagated + propagated.T)
 
 
 def cholesky_solve(a: NDArray[np.float64], b: NDArray[np.float64]) -> NDArray[np.float64] | None:

@@ -30,6 +30,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from fusion.error_model import StateLayout
+from fusion.kalman import propagate_covariance
 from fusion.rows import RowBuffer
 
 HISTORY_STEP_S = 1.0
@@ -108,8 +109,7 @@ class ObservabilityTracker:
 
     def predict(self, phi: NDArray[np.float64], qd: NDArray[np.float64]) -> None:
         """``P⁻ ← Φ P⁻ Φᵀ + Q_d`` with the filter's own Φ and Q_d."""
-        p = phi @ self._prior @ phi.T + qd
-        self._prior = 0.5 * (p + p.T)
+        self._prior = propagate_covariance(self._prior, phi, qd)
 
     def due(self, t: float) -> bool:
         """Whether the history takes a row at output epoch ``t``."""

@@ -8,6 +8,8 @@ import pytest
 from fusion.config import parse_config
 from fusion.engine import Engine
 from fusion.error_model import observable_force
+from fusion.kalman import KalmanFilter
+from fusion.observability import ObservabilityTracker
 from fusion.yaw_nullspace import constrain_rows, constrain_transition, turn_direction
 from tests.test_engine import make_recording
 
@@ -29,7 +31,8 @@ def _standstill(
     layout, model = engine.layout, engine.model
     nav = engine.initial_state().to_array()
     rng = np.random.default_rng(7)
-    p = prior = layout.initial_covariance()
+    kf = KalmanFilter(np.zeros(layout.dim), layout.initial_covariance())
+    prior = ObservabilityTracker(layout)
     h = np.zeros((3, layout.dim))
     h[:, layout.slice("velocity")] = np.eye(3)
     r = 1e-4 * np.eye(3)
@@ -37,7 +40,8 @@ def _standstill(
     before = turn_direction(layout, np.zeros(3), position)
     for _ in range(int(seconds / 0.1)):
         f = np.array([*(fluctuation_mg * 1e-3 * G * rng.standard_normal(2)), G])
-        phi, qd = model.discrete(nav, observable_force(f, np.eye(3), p[:15, :15]), np.eye(3), 0.1)
+        f = observable_force(f, np.eye(3), kf.P[:15, :15])
+        phi, qd = model.discrete(nav, f, np.eye(3), 0.1)
         position += 0.001 * rng.standard_normal(3)  # the nominal's drift and the corrections
         after = turn_direction(layout, 0.003 * rng.standard_normal(3), position)
         rows = h
@@ -45,14 +49,13 @@ def _standstill(
             phi = constrain_transition(phi, before, after, layout)
             rows = constrain_rows(h, after, layout)
         before = after
-        p = phi @ p @ phi.T + qd
-        prior = phi @ prior @ phi.T + qd
-        gain = np.linalg.solve(rows @ p @ rows.T + r, rows @ p).T
-        i_kh = np.eye(layout.dim) - gain @ rows
-        p = i_kh @ p @ i_kh.T + gain @ r @ gain.T
+        kf.predict(phi, qd)
+        prior.predict(phi, qd)
+        kf.update(np.zeros(3), rows, r)
+    prior_variance = prior.report(kf.P).prior_variance
     bz, yaw = layout.slice("gyro_bias").start + 2, layout.slice("attitude").start + 2
-    sd = np.sqrt(np.diag(p))
-    sd_prior = np.sqrt(np.diag(prior))
+    sd = np.sqrt(np.diag(kf.P))
+    sd_prior = np.sqrt(prior_variance)
     return float(sd[bz]), float(sd[yaw]), float(sd_prior[bz]), float(sd_prior[yaw])
 
 
