@@ -1786,15 +1786,15 @@ def _physical_problems(
         return np.arange(n, dtype=np.int64)
 
     imu = _Reporter(naming.stream("imu"), unit=naming.unit)
-    n = r.imu.t.size
+    imu_rows = rows(r.imu.t.size)
     names = STREAM_COLUMNS["imu"]
-    _check_limit(r.imu.gyro, rows(n), names[1:4], MAX_ANGULAR_RATE_RADPS, "rad/s", "gyro", imu)
+    _check_limit(r.imu.gyro, imu_rows, names[1:4], MAX_ANGULAR_RATE_RADPS, "rad/s", "gyro", imu)
     _check_limit(
-        r.imu.accel, rows(n), names[4:7], MAX_SPECIFIC_FORCE_MPS2, "m/s²", "accelerometer", imu
+        r.imu.accel, imu_rows, names[4:7], MAX_SPECIFIC_FORCE_MPS2, "m/s²", "accelerometer", imu
     )
     gaps = _check_imu_gaps(
         r.imu.t,
-        rows(n),
+        imu_rows,
         imu,
         report=not bridge_imu_gaps,
         known=r.imu_gaps,
