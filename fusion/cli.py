@@ -8,9 +8,15 @@ import os
 import sys
 import time
 from collections.abc import Sequence
+from dataclasses import replace
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from fusion import __version__
+
+if TYPE_CHECKING:
+    from fusion.engine import Engine
+    from fusion.outputs import Invocation
 
 EXAMPLES = """\
 examples:
@@ -26,6 +32,10 @@ examples:
   fusion validate-config configs/sins_only.yaml
 """
 
+EXIT_FAILURE = 1
+"""Exit status for a runtime failure: the engine failed, an output could not be written."""
+EXIT_USAGE = 2
+"""Exit status for bad command-line arguments (argparse's), and for an ``--out`` refused."""
 EXIT_BAD_INPUT = 2
 """Exit status for a recording, configuration, scenario or dataset that breaks a rule (the
 message names the file, line or key); argparse uses 2 for bad arguments as well."""
@@ -62,25 +72,69 @@ class _Progress:
 def _cmd_run(args: argparse.Namespace) -> int:
     from fusion.config import find_config, load_config
     from fusion.engine import Engine
-    from fusion.outputs import summary, write_outputs
+    from fusion.output_dir import OutputTarget, foreign_to_result
     from fusion.recording import read_recording
 
+    invocation = _invocation(args)
+    target = None
+    if not args.check:  # a refused --out costs nothing: checked before the recording is read
+        target = OutputTarget(args.out, force=args.force, foreign=foreign_to_result)
     config = load_config(find_config(args.config))
     recording = read_recording(args.recording, bridge_imu_gaps=config.bridge_imu_gaps)
     engine = Engine(config, recording)
-    if args.check:
+    if target is None:
         print(f"{args.config}: valid; states: {', '.join(engine.layout.labels)}")
         return 0
-    progress = _Progress(not args.quiet)
+    with target.staging() as staging:
+        files = _fuse_into(
+            engine,
+            staging,
+            invocation,
+            quiet=args.quiet,
+            plots=not args.no_plots,
+            figure_format=args.format,
+        )
+    if not args.quiet:
+        print("wrote      " + ", ".join(str(target.final(p, staging)) for p in files.values()))
+    return 0
+
+
+def _fuse_into(
+    engine: Engine,
+    out: Path,
+    invocation: Invocation,
+    *,
+    quiet: bool,
+    plots: bool,
+    figure_format: str,
+    recorded_as: Path | None = None,
+) -> dict[str, Path]:
+    """Run ``engine`` and write its result into ``out`` (a staging directory); print the
+    summary unless ``quiet``."""
+    from fusion.outputs import summary, write_outputs
+
+    progress = _Progress(not quiet)
     result = engine.run(progress)
     progress.close()
     files = write_outputs(
-        result, recording, args.out, plots=config.output.plots and not args.no_plots
+        result,
+        engine.recording,
+        out,
+        plots=engine.config.output.plots and plots,
+        figure_format=figure_format,
+        invocation=invocation,
+        recorded_as=recorded_as,
     )
-    if not args.quiet:
-        print(summary(result, recording))
-        print("wrote      " + ", ".join(str(p) for p in files.values()))
-    return 0
+    if not quiet:
+        print(summary(result, engine.recording))
+    return files
+
+
+def _invocation(args: argparse.Namespace) -> Invocation:
+    """The command line and start of this command, for run.json."""
+    from fusion.outputs import Invocation
+
+    return Invocation.now(["fusion", *args.argv])
 
 
 def _cmd_validate(args: argparse.Namespace) -> int:
@@ -108,14 +162,17 @@ def _cmd_validate_config(args: argparse.Namespace) -> int:
 
 
 def _cmd_simulate(args: argparse.Namespace) -> int:
+    from fusion.output_dir import OutputTarget, foreign_to_recording
     from fusion.sim.simulate import simulate
 
     if args.list:
         return _cmd_scenarios(args)
     if args.scenario is None or args.out is None:
         raise SystemExit("fusion simulate: give SCENARIO and OUT (or --list)")
-    path = simulate(args.scenario, args.out, seed=args.seed, overrides=args.set)
-    print(f"wrote recording {path}")
+    target = OutputTarget(args.out, force=args.force, foreign=foreign_to_recording)
+    with target.staging() as staging:
+        simulate(args.scenario, staging, seed=args.seed, overrides=args.set)
+    print(f"wrote recording {args.out}")
     return 0
 
 
@@ -137,30 +194,42 @@ def _cmd_sim_plot(args: argparse.Namespace) -> int:
 
 def _cmd_import(args: argparse.Namespace) -> int:
     from fusion.importers import import_dataset
+    from fusion.output_dir import OutputTarget, foreign_to_recording
 
-    print(import_dataset(args.kind, args.src, args.out))
+    target = OutputTarget(args.out, force=args.force, foreign=foreign_to_recording)
+    with target.staging() as staging:
+        report = import_dataset(args.kind, args.src, staging)
+    print(replace(report, out=Path(args.out)))
     print(f"{args.out}: valid shearer-recording/1")
     return 0
 
 
 def _cmd_demo(args: argparse.Namespace) -> int:
-    out = Path(args.out)
-    recording = out / "recording"
-    _cmd_simulate(
-        argparse.Namespace(
-            list=False, scenario=args.scenario, out=recording, seed=args.seed, set=args.set
-        )
-    )
-    return _cmd_run(
-        argparse.Namespace(
-            config=args.config,
-            recording=recording,
-            out=out / "result",
-            check=False,
+    """Simulate into OUT/recording and fuse it into OUT/result, OUT replaced as a whole."""
+    from fusion.config import find_config, load_config
+    from fusion.engine import Engine
+    from fusion.output_dir import OutputTarget, foreign_to_demo
+    from fusion.recording import read_recording
+    from fusion.sim.simulate import simulate
+
+    invocation = _invocation(args)
+    config = load_config(find_config(args.config))
+    target = OutputTarget(args.out, force=args.force, foreign=foreign_to_demo)
+    with target.staging() as staging:
+        path = simulate(args.scenario, staging / "recording", seed=args.seed, overrides=args.set)
+        recording = read_recording(path, bridge_imu_gaps=config.bridge_imu_gaps)
+        files = _fuse_into(
+            Engine(config, recording),
+            staging / "result",
+            invocation,
             quiet=False,
-            no_plots=False,
+            plots=True,
+            figure_format=args.format,
+            recorded_as=target.final(path, staging),
         )
-    )
+    print(f"wrote recording {target.final(path, staging)}")
+    print("wrote      " + ", ".join(str(target.final(p, staging)) for p in files.values()))
+    return 0
 
 
 def _cmd_plugins(args: argparse.Namespace) -> int:
@@ -175,6 +244,19 @@ def _cmd_plugins(args: argparse.Namespace) -> int:
             print(f"{name:20s} BROKEN: {exc}")
             status = 1
     return status
+
+
+def _output_arguments(parser: argparse.ArgumentParser, force: str, *, figures: bool) -> None:
+    """``--force`` (and ``--format`` for a command that draws figures)."""
+    from fusion.output_dir import FIGURE_FORMATS
+
+    parser.add_argument(
+        "--force", action="store_true", help=f"{force} (never a directory of other files)"
+    )
+    if figures:
+        parser.add_argument(
+            "--format", choices=FIGURE_FORMATS, default="png", help="file format of the figures"
+        )
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -196,7 +278,8 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--out", required=False, default="out", help="output directory")
     run.add_argument("--check", action="store_true", help="validate config + recording only")
     run.add_argument("--quiet", action="store_true", help="no progress bar or summary")
-    run.add_argument("--no-plots", action="store_true", help="skip the PNG figures")
+    run.add_argument("--no-plots", action="store_true", help="skip the figures")
+    _output_arguments(run, "replace the earlier fusion result in --out", figures=True)
     run.set_defaults(func=_cmd_run)
 
     val = sub.add_parser("validate", help="check a recording; list every problem")
@@ -225,6 +308,7 @@ def build_parser() -> argparse.ArgumentParser:
     sim.add_argument(
         "--list", action="store_true", help="list the scenario presets and random families"
     )
+    _output_arguments(sim, "replace the recording fusion wrote in OUT", figures=False)
     sim.set_defaults(func=_cmd_simulate)
 
     scen = sub.add_parser("scenarios", help="list the scenario presets and random families")
@@ -239,6 +323,7 @@ def build_parser() -> argparse.ArgumentParser:
     imp.add_argument("kind", choices=sorted(IMPORTERS))
     imp.add_argument("src", help="dataset folder (rtklib-drive) or trial .mat file")
     imp.add_argument("out", help="recording directory to write")
+    _output_arguments(imp, "replace the recording fusion wrote in OUT", figures=False)
     imp.set_defaults(func=_cmd_import)
 
     demo = sub.add_parser("demo", help="simulate the default recording and fuse it")
@@ -247,6 +332,7 @@ def build_parser() -> argparse.ArgumentParser:
     demo.add_argument("--config", default=DEFAULT_DEMO_CONFIG)
     demo.add_argument("--seed", type=int, default=0)
     demo.add_argument("--set", action="append", default=[], metavar="KEY=VALUE")
+    _output_arguments(demo, "replace the earlier fusion demo in --out", figures=True)
     demo.set_defaults(func=_cmd_demo)
 
     plugins = sub.add_parser("plugins", help="list the registered aiding plugins")
@@ -258,18 +344,27 @@ def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``fusion`` console script."""
     from fusion.config import ConfigError
     from fusion.importers import DatasetError
+    from fusion.output_dir import OutputRefused, OutputWriteError
     from fusion.plugin import PluginError
     from fusion.recording import RecordingError
     from fusion.sim.scenario import ScenarioError
 
     args = build_parser().parse_args(argv)
+    args.argv = list(sys.argv[1:] if argv is None else argv)
     try:
         return int(args.func(args))
     except (ConfigError, RecordingError, PluginError, DatasetError, ScenarioError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return EXIT_BAD_INPUT
-    except KeyboardInterrupt:
-        print(f"fusion {args.command}: interrupted", file=sys.stderr)
+    except OutputRefused as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return EXIT_USAGE
+    except OutputWriteError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return EXIT_FAILURE
+    except KeyboardInterrupt as exc:  # its message, when there is one, says what was kept
+        kept = f": {exc}" if str(exc) else ""
+        print(f"fusion {args.command}: interrupted{kept}", file=sys.stderr)
         return EXIT_INTERRUPTED
     except BrokenPipeError:  # the reader of stdout went away (`fusion plugins | head -1`)
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())

@@ -49,7 +49,7 @@ def test_ctrl_c_stops_with_a_message_and_its_own_status(tmp_path: Path) -> None:
     rec = tmp_path / "rec"
     proc = _fusion("simulate", "longwall-shift", str(rec))
     deadline = time.monotonic() + 60.0
-    while not rec.exists() and time.monotonic() < deadline:  # the simulation has begun
+    while not any(tmp_path.glob(".rec.staging-*")) and time.monotonic() < deadline:  # begun
         time.sleep(0.1)
     time.sleep(0.5)
     proc.send_signal(signal.SIGINT)
