@@ -18,10 +18,17 @@ then the previous result deleted: a kill between the two renames leaves no resul
 (the earlier one stays aside, hidden), never a mix. SIGINT is held during the swap, so Ctrl-C lands
 before it (nothing written) or after it (the new result in place). The hidden directories of a
 killed process (whose PID is gone) are deleted by the next write to the same target.
+
+Where a rename cannot do the swap (the target is a mount point, or its parent another filesystem
+or not writable: a container's output volume), the staging directory is made inside the target
+(``.fusion-staging-PID``, when the parent cannot be written) and its files moved into place one by
+one, ``run.json`` last, after the earlier result's files (its ``run.json`` first): a kill part-way
+then leaves a directory without ``run.json``, which is no result.
 """
 
 from __future__ import annotations
 
+import errno
 import json
 import os
 import re
@@ -58,6 +65,9 @@ FIGURE_FORMATS = ("png", "svg", "pdf")
 
 DEMO_ENTRIES = ("recording", "result")
 """The two directories of ``fusion demo --out``: the simulated recording and the run's result."""
+
+INSIDE_STAGING = re.compile(r"\.fusion-staging-(\d+)")
+"""The name of a staging directory made inside the target (its parent could not be written)."""
 
 Recogniser = Callable[[Path], "str | None"]
 """Why a directory is not one fusion wrote (naming an entry), or None when it is."""
@@ -100,7 +110,7 @@ def foreign_to_demo(path: Path) -> str | None:
 
 
 def _foreign(path: Path, allowed: set[str] | frozenset[str], rule: str) -> str | None:
-    extra = sorted(set(os.listdir(path)) - allowed)
+    extra = sorted(set(_entries(path)) - allowed)
     return f"it holds {extra[0]!r}, which fusion did not write ({rule})" if extra else None
 
 
@@ -130,7 +140,7 @@ class OutputTarget:
             return False
         if not self.path.is_dir():
             raise OutputRefused(f"{self.shown}: exists and is not a directory")
-        if not any(self.path.iterdir()):
+        if not _entries(self.path):
             return False
         if not self.force:
             raise OutputRefused(
@@ -163,12 +173,9 @@ class OutputTarget:
         ``KeyboardInterrupt`` whose message says what was kept; an ``OSError`` becomes an
         :class:`OutputWriteError` saying the same.
         """
-        parent = self.path.parent
-        self._delete_leftovers(parent)
-        staging = parent / f".{self.path.name}.staging-{os.getpid()}"
+        self._delete_leftovers()
         try:
-            parent.mkdir(parents=True, exist_ok=True)
-            staging.mkdir()
+            staging = self._new_staging()
         except OSError as exc:
             raise self._write_error(exc) from None
         try:
@@ -198,36 +205,83 @@ class OutputTarget:
             f" nothing written, {self.kept()}"
         )
 
+    def _new_staging(self) -> Path:
+        """An empty staging directory beside the target, or inside an existing target whose
+        parent cannot be written."""
+        beside = self.path.parent / f".{self.path.name}.staging-{os.getpid()}"
+        try:
+            self.path.parent.mkdir(parents=True, exist_ok=True)
+            beside.mkdir()
+            return beside
+        except OSError:
+            if not self.path.is_dir():
+                raise
+        inside = self.path / f".fusion-staging-{os.getpid()}"
+        inside.mkdir()
+        return inside
+
     def _swap(self, staging: Path) -> None:
-        """Rename ``staging`` into place with SIGINT held; the target is restored on failure."""
+        """Put ``staging`` in place with SIGINT held: by rename, or file by file where a rename
+        cannot (see the module docstring); the target is restored when a rename fails."""
         held = hasattr(signal, "pthread_sigmask")
         if held:
             signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
         try:
-            if not self.path.exists() or not any(self.path.iterdir()):
-                os.rename(staging, self.path)  # replaces an empty directory atomically
-                return
-            aside = self.path.parent / f".{self.path.name}.replaced-{os.getpid()}"
-            os.rename(self.path, aside)
-            try:
-                os.rename(staging, self.path)
-            except OSError:
-                os.rename(aside, self.path)
-                raise
-            shutil.rmtree(aside, ignore_errors=True)
+            if staging.parent == self.path:
+                self._move_into(staging)
+            else:
+                try:
+                    self._rename_into(staging)
+                except OSError as exc:
+                    if exc.errno not in (errno.EXDEV, errno.EBUSY) or not self.path.is_dir():
+                        raise
+                    self._move_into(staging)
         finally:
             if held:
                 signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})
 
-    def _delete_leftovers(self, parent: Path) -> None:
-        """Delete the hidden directories of earlier writes to this target whose process is gone."""
-        if not parent.is_dir():
+    def _rename_into(self, staging: Path) -> None:
+        """Replace the target by ``staging`` with renames (the earlier result set aside first)."""
+        if not self.path.exists() or not _entries(self.path):
+            os.rename(staging, self.path)  # replaces an empty directory atomically
             return
-        pattern = re.compile(rf"\.{re.escape(self.path.name)}\.(?:staging|replaced)-(\d+)")
-        for entry in parent.iterdir():
-            match = pattern.fullmatch(entry.name)
-            if match and entry.is_dir() and not _alive(int(match.group(1))):
-                shutil.rmtree(entry, ignore_errors=True)
+        aside = self.path.parent / f".{self.path.name}.replaced-{os.getpid()}"
+        os.rename(self.path, aside)
+        try:
+            os.rename(staging, self.path)
+        except OSError:
+            os.rename(aside, self.path)
+            raise
+        shutil.rmtree(aside, ignore_errors=True)
+
+    def _move_into(self, staging: Path) -> None:
+        """Delete the earlier result's entries (``run.json`` first), then move the staged ones
+        into the target (``run.json`` last) and remove ``staging``."""
+        earlier = [self.path / name for name in _entries(self.path) if name != staging.name]
+        for entry in sorted(earlier, key=lambda e: e.name != RUN_JSON):
+            if entry.is_dir() and not entry.is_symlink():
+                shutil.rmtree(entry)
+            else:
+                entry.unlink()
+        for entry in sorted(staging.iterdir(), key=lambda e: e.name == RUN_JSON):
+            shutil.move(entry, self.path / entry.name)
+        staging.rmdir()
+
+    def _delete_leftovers(self) -> None:
+        """Delete the hidden directories of earlier writes to this target whose process is gone."""
+        beside = re.compile(rf"\.{re.escape(self.path.name)}\.(?:staging|replaced)-(\d+)")
+        for folder, pattern in ((self.path.parent, beside), (self.path, INSIDE_STAGING)):
+            if not folder.is_dir():
+                continue
+            for entry in folder.iterdir():
+                match = pattern.fullmatch(entry.name)
+                if match and entry.is_dir() and not _alive(int(match.group(1))):
+                    shutil.rmtree(entry, ignore_errors=True)
+
+
+def _entries(path: Path) -> list[str]:
+    """The names in directory ``path`` except the staging directories fusion makes inside it."""
+    return [name for name in os.listdir(path) if not INSIDE_STAGING.fullmatch(name)]
 
 
 def _alive(pid: int) -> bool:

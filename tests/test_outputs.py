@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+import errno
 import hashlib
 import json
 import os
@@ -306,3 +307,54 @@ def test_ctrl_c_while_writing_says_what_was_kept(
     else:
         assert not out.exists()
     assert _hidden_beside(out) == []
+
+
+# ------------------------------------------------------------------------------------------
+# A target no rename can replace (a container's output volume)
+# ------------------------------------------------------------------------------------------
+
+
+def _refuse_directory_renames(code: int, real: Callable[..., None]) -> Callable[..., None]:
+    """``os.rename`` as on a mount point: a directory cannot be renamed onto or off it."""
+
+    def rename(src: Any, dst: Any, *args: Any, **kwargs: Any) -> None:
+        if Path(src).is_dir():
+            raise OSError(code, os.strerror(code), str(src))
+        real(src, dst, *args, **kwargs)
+
+    return rename
+
+
+@pytest.mark.parametrize("code", ["EXDEV", "EBUSY"])
+def test_a_mount_point_target_gets_the_files_moved_in(
+    run: tuple[RunResult, Recording],
+    earlier: Path,
+    code: str,
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    before = _complete(earlier)["started_utc"]
+    monkeypatch.setattr(os, "rename", _refuse_directory_renames(getattr(errno, code), os.rename))
+    _publish(run, earlier)  # replaces the earlier result file by file
+    assert _complete(earlier)["started_utc"] != before
+    assert _hidden_beside(earlier) == []
+
+
+def test_an_unwritable_parent_stages_inside_the_target(
+    run: tuple[RunResult, Recording],
+    earlier: Path,
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    dead = earlier / ".fusion-staging-999999999"  # a killed run's, inside: ignored, then deleted
+    dead.mkdir()
+    OutputTarget(earlier, force=True, foreign=foreign_to_result)  # not foreign, not refused
+    real = Path.mkdir
+
+    def mkdir(self: Path, *args: Any, **kwargs: Any) -> None:
+        if self.parent == earlier.parent and self != earlier:
+            raise PermissionError(errno.EACCES, "Permission denied", str(self))
+        real(self, *args, **kwargs)
+
+    monkeypatch.setattr(Path, "mkdir", mkdir)
+    _publish(run, earlier)
+    _complete(earlier)  # run.json lists exactly the files: no staging directory is left
+    assert _hidden_beside(earlier) == []
