@@ -496,14 +496,34 @@ def parse_config(data: Any, source: str = "<config>") -> FusionConfig:
         raise ConfigError("\n".join(error_lines(source, FusionConfig, exc))) from None
 
 
+def _packaged_configs() -> Path:
+    installed = Path(__file__).resolve().parent / "configs"
+    return installed if installed.is_dir() else Path(__file__).resolve().parents[1] / "configs"
+
+
+PACKAGED_CONFIGS = _packaged_configs()
+"""The configurations shipped with this copy of fusion: ``fusion/configs/`` in an installed wheel
+(pyproject.toml maps the repository's ``configs/`` there), the repository's ``configs/`` in a
+clone or an editable install."""
+
+
 def find_config(name_or_path: str | Path) -> Path:
-    """A config path as given, or ``configs/NAME.yaml`` in the working tree or the repository."""
+    """The configuration file that ``name_or_path`` names, from any working directory.
+
+    In order: the path as given, when it exists; else ``configs/NAME.yaml`` under the working
+    directory; else ``NAME.yaml`` among :data:`PACKAGED_CONFIGS`. NAME is the argument with or
+    without ``.yaml``, and ``configs/NAME.yaml`` counts as NAME too, so a clone's command line
+    (``fusion run --config configs/sins_only.yaml``) works anywhere fusion is installed. Any
+    other path, or a name found nowhere, is returned as given: reading it then fails with one
+    line naming it (:func:`load_config`).
+    """
     path = Path(name_or_path)
-    if path.exists():
+    if path.exists() or path.is_absolute() or path.parent not in (Path("."), Path("configs")):
         return path
-    for root in (Path.cwd(), Path(__file__).resolve().parents[1]):
-        candidate = root / "configs" / f"{name_or_path}.yaml"
-        if candidate.exists():
+    name = path.name.removesuffix(".yaml")
+    for directory in (Path("configs"), PACKAGED_CONFIGS):
+        candidate = directory / f"{name}.yaml"
+        if candidate.is_file():
             return candidate
     return path
 

@@ -56,7 +56,6 @@ from collections.abc import Iterable
 from dataclasses import dataclass, field
 from typing import Literal
 
-import numba
 import numpy as np
 import scipy.linalg
 from numpy.typing import ArrayLike, NDArray
@@ -262,7 +261,7 @@ def common_blocks(
     )
 
 
-@numba.njit(cache=True)
+@kernels.jit
 def _fill_sins_dynamics(
     f: NDArray[np.float64],
     nav: NDArray[np.float64],
