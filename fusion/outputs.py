@@ -13,6 +13,7 @@ from fusion.jumps import JUMP
 from fusion.metrics import compute_metrics, write_metrics_json
 from fusion.recording import Recording
 from fusion.solution import write_solution
+from fusion.state_history import write_states
 
 
 def write_outputs(
@@ -23,6 +24,9 @@ def write_outputs(
     out.mkdir(parents=True, exist_ok=True)
     files = {"solution": out / "solution.csv"}
     write_solution(result.solution, files["solution"])
+    if result.states is not None:
+        files["states"] = out / "states.csv"
+        write_states(result.states, files["states"])
     if result.config.filter.architecture == "federated" or result.faults:
         files["faults"] = out / "faults.csv"
         write_faults(result.faults, files["faults"])
