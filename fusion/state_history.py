@@ -9,8 +9,8 @@ layout (the fused ones for the federated filter) to a :class:`StateRecorder`; th
 Columns of ``states.csv`` and of :meth:`StateHistory.to_pandas`, the unit in each name:
 
 * ``t``: epoch (s, recording clock), the key shared with ``solution.csv``;
-* ``lat_deg, lon_deg, h_m``: WGS84 geodetic position, from the ENU position about the
-  recording's origin (meta.yaml); ``e_m, n_m, u_m``; ``ve_m_s, vn_m_s, vu_m_s``;
+* ``lat_deg, lon_deg, h_m``: WGS84 latitude, longitude and ellipsoidal height, from the ENU
+  position about the recording's origin (meta.yaml); ``e_m, n_m, u_m``; ``ve_m_s, vn_m_s, vu_m_s``;
   ``roll_deg, pitch_deg, yaw_deg``: the nominal state, ``solution.csv``'s in other units;
 * one column per other estimated state, ``<block>_<label>_<unit>`` with the block's dots as
   underscores and the label left out of a one-state block (``gyro_bias_z_deg_h``,
@@ -25,7 +25,8 @@ that are not navigation errors and three attitude cross-covariances, in float32 
 digits, as many as a σ or a bias has; the nominal trajectory stays the solution's float64).
 At output at every filter epoch that is 4·(2n − 6) bytes a row for n states: an 8-hour shift
 at 200 Hz and 20 states holds 0.8 GB (1.6 GB in float64), less than the solution's own rows.
-The file is formatted in blocks of :data:`WRITE_ROWS` rows.
+The file is formatted in blocks of :data:`WRITE_ROWS` rows. Measurements and the choices not
+made (decimation, streaming): ``docs/design/2026-11-27-state-history.md``.
 """
 
 from __future__ import annotations
