@@ -445,6 +445,11 @@ class OutputOptions(_Strict):
 
     rate_hz: float | None = Field(None, gt=0, description="None: every covariance step")
     plots: bool = True
+    states: bool = Field(
+        True,
+        description="record every estimated state and its 1-sigma at the output epochs"
+        " (RunResult.states) and write states.csv",
+    )
 
 
 class FusionConfig(_Strict):

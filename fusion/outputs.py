@@ -23,6 +23,7 @@ from fusion.metrics import compute_metrics, write_metrics_json
 from fusion.output_dir import FIGURE_FORMATS, RECORDING_FILES, RUN_JSON
 from fusion.recording import Recording
 from fusion.solution import write_solution
+from fusion.state_history import write_states
 
 
 @dataclass(frozen=True)
@@ -64,6 +65,9 @@ def write_outputs(
     out.mkdir(parents=True, exist_ok=True)
     files = {"solution": out / "solution.csv"}
     write_solution(result.solution, files["solution"])
+    if result.states is not None:
+        files["states"] = out / "states.csv"
+        write_states(result.states, files["states"])
     if result.config.filter.architecture == "federated" or result.faults:
         files["faults"] = out / "faults.csv"
         write_faults(result.faults, files["faults"])

@@ -1505,13 +1505,14 @@ _CHUNK_ROWS = 16384  # rows formatted at once: about 20 MB of Python objects for
 def csv_text_chunks(
     header: Sequence[str], columns: Sequence[npt.NDArray[Any]], kinds: str
 ) -> Iterable[bytes]:
-    """Yield a CSV file's bytes in chunks: floats as ``repr`` (exact), ints as ``%d``, text as is.
+    """Yield a CSV file's bytes in chunks: floats as ``repr`` (exact; kind ``f``) or to 7
+    significant digits (kind ``g``, float32's precision), ints as ``%d``, text as is.
 
     Public so that writers working in chunks (the simulator) produce exactly this format.
     """
     yield (",".join(header) + "\n").encode()
     n = len(columns[0]) if columns else 0
-    fmt = ",".join({"f": "%r", "i": "%d", "s": "%s"}[k] for k in kinds) + "\n"
+    fmt = ",".join({"f": "%r", "g": "%.7g", "i": "%d", "s": "%s"}[k] for k in kinds) + "\n"
     for start in range(0, n, _CHUNK_ROWS):
         stop = min(n, start + _CHUNK_ROWS)
         parts = [c[start:stop].tolist() for c in columns]
