@@ -79,7 +79,7 @@ def test_run_json_records_config_version_recording_command_times_and_files(
     before = datetime.now().astimezone()
     assert _fusion_run(inputs, out) == 0
     record = _complete(out)
-    assert set(record["files"]) == {"solution.csv", "smoothed.csv", "metrics.json"}
+    assert set(record["files"]) == {"solution.csv", "smoothed.csv", "states.csv", "metrics.json"}
     assert record["fusion_version"] == __version__
     assert record["command"][:2] == ["fusion", "run"] and str(out) in record["command"]
     started = datetime.fromisoformat(record["started_utc"])
