@@ -17,6 +17,7 @@ import numpy as np
 
 from fusion import __version__
 from fusion.engine import RunResult
+from fusion.error_model import STATE_UNITS
 from fusion.fault_detection import ISOLATE, READMIT, FaultEvent
 from fusion.jumps import JUMP
 from fusion.metrics import compute_metrics, write_metrics_json
@@ -208,9 +209,10 @@ def summary(result: RunResult, recording: Recording) -> str:
     estimated = result.config.filter.architecture in ("centralized", "federated")
     for block in result.layout.blocks[3:] if estimated else ():
         est, sd = result.state_estimate(block.name)
+        scale, unit = STATE_UNITS[block.unit], block.unit.replace("_", "/")
         lines.append(
-            f"estimate   {block.name}: {np.array2string(est, precision=6)} "
-            f"± {np.array2string(sd, precision=6)}"
+            f"estimate   {block.name}: {np.array2string(est * scale, precision=4)} "
+            f"± {np.array2string(sd * scale, precision=4)} {unit}".rstrip()
         )
     if result.observability is not None:
         lines.append("observed   share of each state's prior variance the data removed:")
