@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 from typing import Any
 
@@ -113,3 +114,31 @@ def summary(result: RunResult, recording: Recording) -> str:
                 f" {m['rms_3d']:.3f} m, max horizontal {m['horizontal_max']:.3f} m"
             )
     return "\n".join(lines)
+
+
+class OutputError(ValueError):
+    """An output path that cannot be used (an existing file where a directory is to be
+    written, a directory that cannot be created); the message names the path."""
+
+
+def check_out_dir(path: str | Path) -> None:
+    """Refuse, before any work, an output directory that cannot be made: ``path`` is an
+    existing non-directory, or its nearest existing ancestor is not a writable directory.
+
+    Raises
+    ------
+    OutputError
+        Naming the path and the reason.
+    """
+    out = Path(path)
+    if out.is_dir():
+        return
+    if out.exists():
+        raise OutputError(f"{out}: exists and is not a directory; give a directory to write to")
+    parent = out.parent
+    while not parent.exists():
+        parent = parent.parent
+    if not parent.is_dir():
+        raise OutputError(f"{out}: cannot be created, {parent} is not a directory")
+    if not os.access(parent, os.W_OK | os.X_OK):
+        raise OutputError(f"{out}: cannot be created, {parent} is not writable")
