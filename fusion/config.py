@@ -206,11 +206,13 @@ class FederatedOptions(_Strict):
     )
     fusion_period_s: float | None = _within(
         None,
-        0.001,
+        0,
         3600,
         "fusion period, s; None: every covariance step that carried an update (the CKF's"
-        " feedback; fusing after a step without one changes nothing); from a 1-kHz IMU's"
-        " interval to an hour",
+        " feedback; fusing after a step without one changes nothing); a period shorter than"
+        " the covariance step fuses at every step, and one over an hour leaves the locals"
+        " unfused for a whole face",
+        low_open=True,
     )
     fault_detection: FaultDetectionOptions = FaultDetectionOptions()
 
