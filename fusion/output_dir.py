@@ -137,6 +137,11 @@ class OutputTarget:
     def _check(self) -> bool:
         """Whether the target holds an earlier result; raise when it may not be replaced."""
         if not self.path.exists():
+            ancestor = next(a for a in self.path.parents if a.exists())
+            if not ancestor.is_dir():
+                raise OutputRefused(
+                    f"{self.shown}: cannot be created, {ancestor} is not a directory"
+                )
             return False
         if not self.path.is_dir():
             raise OutputRefused(f"{self.shown}: exists and is not a directory")

@@ -1236,7 +1236,8 @@ def _inspect(path: str | Path, *, bridge_imu_gaps: bool) -> tuple[Recording | No
     """Run every check; return the recording (None when any problem was found) and problems."""
     root = Path(path)
     if not root.is_dir():
-        return None, [Problem("", "", f"recording directory {str(root)!r} does not exist")]
+        found = "is not a directory" if root.exists() else "does not exist"
+        return None, [Problem("", "", f"recording directory {str(root)!r} {found}")]
     meta, raw, key_lines, problems = _load_meta(root / "meta.yaml")
 
     # Locate the CSV files (plain or gzip-compressed, never both).
@@ -1315,6 +1316,7 @@ def _inspect(path: str | Path, *, bridge_imu_gaps: bool) -> tuple[Recording | No
                 gaps = _check_imu_gaps(table, rep, report=not bridge_imu_gaps)
             tables[stem] = table
         problems.extend(rep.finish())
+    problems.extend(_truth_overlap(tables, files))
 
     if problems or meta is None:
         return None, problems
@@ -1328,6 +1330,27 @@ def _inspect(path: str | Path, *, bridge_imu_gaps: bool) -> tuple[Recording | No
             + (" ..." if len(gaps) > 5 else ""),
         )
     return _build(root, meta, tables, gaps if bridge_imu_gaps else []), []
+
+
+def _truth_overlap(tables: dict[str, _Table], files: dict[str, Path]) -> list[Problem]:
+    """A truth whose time span misses the IMU's entirely scores nothing (and scoring it would
+    fail): one problem naming both spans."""
+    if "truth" not in tables or "imu" not in tables:
+        return []
+    t_imu, t_truth = tables["imu"].values[:, 0], tables["truth"].values[:, 0]
+    if t_imu.size == 0 or t_truth.size == 0:
+        return []
+    if t_truth[-1] >= t_imu[0] and t_truth[0] <= t_imu[-1]:
+        return []
+    return [
+        Problem(
+            files["truth"].name,
+            "",
+            f"its time span {_num(t_truth[0])}..{_num(t_truth[-1])} s does not overlap"
+            f" {files['imu'].name}'s {_num(t_imu[0])}..{_num(t_imu[-1])} s: the recording's"
+            " clock lies outside its truth, so nothing can be scored",
+        )
+    ]
 
 
 def _check_rate(
