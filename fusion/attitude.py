@@ -53,6 +53,26 @@ def euler_from_dcm(c_b_n: ArrayLike) -> NDArray[np.float64]:
     return np.stack([roll, pitch, yaw], axis=-1)
 
 
+def euler_jacobian(euler: ArrayLike) -> NDArray[np.float64]:
+    """``∂(roll, pitch, yaw)/∂φ`` (..., 3, 3) at roll, pitch, yaw (..., 3) in radians, for the
+    misalignment φ of the computed n-frame, ``C̃_b^n = (I − φ×) C_b^n``
+    (:mod:`fusion.error_model`): the covariance of the Euler angles is ``J P_φ Jᵀ``. Singular
+    at pitch ±90° (roll and yaw are then one angle)."""
+    e = np.asarray(euler, dtype=float)
+    c = dcm_from_euler(e[..., 0], e[..., 1], e[..., 2])
+    jacobian = np.empty((*e.shape[:-1], 3, 3))
+    for k in range(3):
+        dc = -skew(np.eye(3)[k]) @ c  # ∂C̃/∂φ_k
+        jacobian[..., 0, k] = (c[..., 2, 0] * dc[..., 2, 2] - c[..., 2, 2] * dc[..., 2, 0]) / (
+            c[..., 2, 0] ** 2 + c[..., 2, 2] ** 2
+        )
+        jacobian[..., 1, k] = dc[..., 2, 1] / np.sqrt(1.0 - c[..., 2, 1] ** 2)
+        jacobian[..., 2, k] = (c[..., 1, 1] * dc[..., 0, 1] - c[..., 0, 1] * dc[..., 1, 1]) / (
+            c[..., 0, 1] ** 2 + c[..., 1, 1] ** 2
+        )
+    return jacobian
+
+
 def quat_multiply(p: NDArray[np.float64], q: NDArray[np.float64]) -> NDArray[np.float64]:
     """Hamilton product ``p ⊗ q`` of two scalar-first quaternions."""
     return np.array(

@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import os
 from pathlib import Path
-from typing import Any, Literal
+from typing import Annotated, Any, Literal
 
 import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
@@ -32,26 +32,77 @@ class ConfigError(ValueError):
 
 
 class _Strict(BaseModel):
-    model_config = ConfigDict(extra="forbid")
+    """Unknown keys, non-finite numbers and out-of-range assignments are errors."""
+
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False, validate_assignment=True)
+
+
+def _within(
+    default: Any,
+    low: float,
+    high: float,
+    description: str,
+    *,
+    low_open: bool = False,
+    high_open: bool = False,
+) -> Any:
+    """A numeric field allowed within ``[low, high]`` (an end is excluded when ``*_open``); the
+    range is appended to ``description``, so the documentation states what validation
+    enforces."""
+    interval = f"{'(' if low_open else '['}{low:g}, {high:g}{')' if high_open else ']'}"
+    return Field(
+        default,
+        gt=low if low_open else None,
+        ge=None if low_open else low,
+        lt=high if high_open else None,
+        le=None if high_open else high,
+        description=f"{description}; allowed {interval}",
+    )
 
 
 class ImuTuning(_Strict):
     """IMU noise figures in datasheet units; ``None`` takes the recording's ``imu.spec``."""
 
-    gyro_bias_deg_h: float | None = Field(None, ge=0, description="bias 1σ (prior)")
-    gyro_arw_deg_rth: float | None = Field(None, ge=0, description="angle random walk")
-    accel_bias_mg: float | None = Field(None, ge=0, description="bias 1σ (prior)")
-    accel_vrw_mg_rthz: float | None = Field(None, ge=0, description="noise density")
-    gyro_bias_instability_deg_h: float = Field(0.0, ge=0, description="Gauss–Markov σ")
-    accel_bias_instability_mg: float = Field(0.0, ge=0, description="Gauss–Markov σ")
-    bias_correlation_time_s: float = Field(3600.0, gt=0)
+    gyro_bias_deg_h: float | None = _within(
+        None,
+        0,
+        1e5,
+        "gyro bias 1σ (prior), deg/h; up to 28 °/s, above the turn-on bias of any gyro"
+        " (consumer MEMS ≈ 1e4 deg/h)",
+    )
+    gyro_arw_deg_rth: float | None = _within(
+        None, 0, 100, "angle random walk, deg/√h; up to 30× a consumer MEMS gyro's (0.3–3)"
+    )
+    accel_bias_mg: float | None = _within(
+        None, 0, 1000, "accelerometer bias 1σ (prior), mg; no accelerometer is off by 1 g"
+    )
+    accel_vrw_mg_rthz: float | None = _within(
+        None, 0, 100, "accelerometer noise density, mg/√Hz; up to 300× a MEMS part's (0.3)"
+    )
+    gyro_bias_instability_deg_h: float = _within(
+        0.0, 0, 1e4, "gyro bias Gauss–Markov σ, deg/h; a consumer MEMS gyro's ≈ 10–100"
+    )
+    accel_bias_instability_mg: float = _within(
+        0.0, 0, 100, "accelerometer bias Gauss–Markov σ, mg; a consumer MEMS part's ≈ 0.1–1"
+    )
+    bias_correlation_time_s: float = _within(
+        3600.0,
+        1,
+        1e6,
+        "bias correlation time τ, s; a faster 'bias' is white noise (the ARW/VRW's job), and"
+        " beyond 11.6 days a Gauss–Markov bias is constant over any recording",
+    )
     bias_model: Literal["gauss_markov", "random_walk"] = Field(
         "gauss_markov",
         description="in-run bias: Gauss–Markov decay of the bias state, or a random walk of the"
         " same density 2σ²/τ on top of the constant turn-on bias",
     )
-    noise_scale: float = Field(
-        1.0, gt=0, description="multiplies ARW and VRW (seed 000 App. A inflates by 5)"
+    noise_scale: float = _within(
+        1.0,
+        0.01,
+        100,
+        "multiplies ARW and VRW (seed 000 App. A inflates by 5); two decades either way of the"
+        " datasheet",
     )
 
 
@@ -59,52 +110,91 @@ class FaultDetectionOptions(_Strict):
     """Fault detection and isolation of the federated master's local filters."""
 
     enabled: bool = True
-    window_s: float = Field(5.0, gt=0, description="sliding window of the χ² test")
-    probability: float = Field(
-        0.9999, gt=0, lt=1, description="χ² quantile (≈ 1 false isolation per hour at 10 Hz)"
+    window_s: float = _within(
+        5.0,
+        0.1,
+        600,
+        "sliding window of the χ² test, s; it needs a few updates (0.1 s at 10–100 Hz) and a"
+        " fault found after 10 min is found too late",
     )
-    hold_s: float = Field(10.0, ge=0, description="consistent this long before re-admission")
-    threshold_scale: float = Field(
+    probability: float = _within(
+        0.9999,
+        0,
+        1,
+        "χ² quantile (≈ 1 false isolation per hour at 10 Hz), a probability",
+        low_open=True,
+        high_open=True,
+    )
+    hold_s: float = _within(
+        10.0, 0, 3600, "consistent this long before re-admission, s; at most an hour"
+    )
+    threshold_scale: float = _within(
         1.5,
-        ge=1,
-        description="isolate only when the window's NIS sum exceeds this multiple of the χ²"
-        " quantile: a fault is gross; mild model mismatch over hundreds of degrees of freedom"
-        " is not",
+        1,
+        100,
+        "isolate only when the window's NIS sum exceeds this multiple of the χ² quantile: a"
+        " fault is gross; mild model mismatch over hundreds of degrees of freedom is not (100×"
+        " would let any fault through)",
     )
     use_indicators: bool = Field(
         True, description="a plugin's indicator, flagging for indicator_confirm_s, isolates"
     )
-    indicator_confirm_s: float = Field(
+    indicator_confirm_s: float = _within(
         2.0,
-        ge=0,
-        description="a plugin's indicator must flag this long without a break before it isolates"
-        " the local (a flagged epoch is down-weighted by its plugin meanwhile)",
+        0,
+        3600,
+        "a plugin's indicator must flag this long (s) without a break before it isolates the"
+        " local (a flagged epoch is down-weighted by its plugin meanwhile); at most an hour",
     )
     mean_test: bool = Field(
         True, description="also test each plugin's windowed mean whitened innovation (a bias)"
     )
-    mean_probability: float = Field(
+    mean_probability: float = _within(
         0.99999,
-        gt=0,
-        lt=1,
-        description="χ² quantile of the mean test (run at every update: its false alarms scale"
-        " with the update rate)",
+        0,
+        1,
+        "χ² quantile of the mean test (run at every update: its false alarms scale with the"
+        " update rate), a probability",
+        low_open=True,
+        high_open=True,
     )
 
 
 class JumpDetectionOptions(_Strict):
     """GLR detection of jumps in the states plugins declare may jump (:mod:`fusion.jumps`)."""
 
-    window_s: float = Field(5.0, gt=0, description="a hypothesis is kept this long after onset")
-    spacing_s: float = Field(0.5, gt=0, description="a hypothesis opens this often")
-    probability: float = Field(
-        0.999999,
-        gt=0,
-        lt=1,
-        description="χ²_1 quantile of the likelihood ratio (several hypotheses are tested at"
-        " every update)",
+    window_s: float = _within(
+        5.0,
+        0.1,
+        600,
+        "a hypothesis is kept this long after onset, s; a few updates at least, and a jump"
+        " older than 10 min is history",
     )
-    min_updates: int = Field(5, ge=1, description="no decision before this many updates")
+    spacing_s: float = _within(
+        0.5,
+        0.05,
+        3600,
+        "a hypothesis opens this often, s; window_s / spacing_s hypotheses are tested at every"
+        " update, so a finer spacing than 0.05 s multiplies the cost without finding an onset"
+        " better than the updates' own spacing; one longer than window_s keeps one hypothesis"
+        " at a time",
+    )
+    probability: float = _within(
+        0.999999,
+        0,
+        1,
+        "χ²_1 quantile of the likelihood ratio (several hypotheses are tested at every update),"
+        " a probability",
+        low_open=True,
+        high_open=True,
+    )
+    min_updates: int = _within(
+        5,
+        1,
+        1e8,
+        "no decision before this many updates; 1e8 is more than an 8-hour shift's at 1 kHz"
+        " (never decide)",
+    )
 
 
 class FederatedOptions(_Strict):
@@ -114,12 +204,18 @@ class FederatedOptions(_Strict):
     sharing: Literal["equal", "trace", "inverse_trace"] = Field(
         "trace", description="β_i: equal, ∝ tr(P_i) (seed 003 eq. 33), or ∝ 1/tr(P_i)"
     )
-    master_share: float = Field(0.0, ge=0, lt=1, description="β_m (the master's own share)")
-    fusion_period_s: float | None = Field(
+    master_share: float = _within(
+        0.0, 0, 1, "β_m, the master's own share of the information", high_open=True
+    )
+    fusion_period_s: float | None = _within(
         None,
-        gt=0,
-        description="None: every covariance step that carried an update (the CKF's feedback;"
-        " fusing after a step without one changes nothing)",
+        0,
+        3600,
+        "fusion period, s; None: every covariance step that carried an update (the CKF's"
+        " feedback; fusing after a step without one changes nothing); a period shorter than"
+        " the covariance step fuses at every step, and one over an hour leaves the locals"
+        " unfused for a whole face",
+        low_open=True,
     )
     fault_detection: FaultDetectionOptions = FaultDetectionOptions()
 
@@ -134,18 +230,35 @@ class FederatedOptions(_Strict):
         return self
 
 
+_Angle = Annotated[float, Field(ge=-180, le=180)]
+_GyroBias = Annotated[float, Field(ge=-1e5, le=1e5)]
+
+
 class DeadReckoningOptions(_Strict):
     """Seed 000's traditional method: odometer speed along the free SINS attitude, open loop."""
 
-    mounting_deg: tuple[float, float, float] = Field(
-        (0.0, 0.0, 0.0), description="odometer-frame mounting (roll, pitch, yaw) relative to b"
+    mounting_deg: tuple[_Angle, _Angle, _Angle] = Field(
+        (0.0, 0.0, 0.0),
+        description="odometer-frame mounting (roll, pitch, yaw) relative to b, deg; each in"
+        " [-180, 180]",
     )
-    scale_error: float = Field(0.0, gt=-1, description="odometer scale error δk_D removed")
-    gyro_bias_deg_h: tuple[float, float, float] = Field(
-        (0.0, 0.0, 0.0), description="gyro bias removed before the mechanization"
+    scale_error: float = _within(
+        0.0,
+        -1,
+        1,
+        "odometer scale error δk_D removed; ±100 % is no odometer at all",
+        low_open=True,
+        high_open=True,
     )
-    scale_sigma: float = Field(0.03, ge=0, description="σ of δk_D for the error envelope")
-    speed_sigma_mps: float = Field(0.01, ge=0, description="odometer speed noise, envelope")
+    gyro_bias_deg_h: tuple[_GyroBias, _GyroBias, _GyroBias] = Field(
+        (0.0, 0.0, 0.0),
+        description="gyro bias removed before the mechanization, deg/h; each in [-1e5, 1e5]"
+        " (28 °/s, above any gyro's turn-on bias)",
+    )
+    scale_sigma: float = _within(0.03, 0, 1, "σ of δk_D for the error envelope; up to 100 %")
+    speed_sigma_mps: float = _within(
+        0.01, 0, 10, "odometer speed noise for the envelope, m/s; above any machine's speed"
+    )
 
 
 class FilterOptions(_Strict):
@@ -157,21 +270,30 @@ class FilterOptions(_Strict):
     federated: FederatedOptions = FederatedOptions()
     jump_detection: JumpDetectionOptions = JumpDetectionOptions()
     dead_reckoning: DeadReckoningOptions = DeadReckoningOptions()
-    covariance_step_s: float = Field(0.1, gt=0, description="covariance propagation step")
-    specific_force_time_constant_s: float = Field(
+    covariance_step_s: float = _within(
+        0.1,
+        0.001,
+        10,
+        "covariance propagation step, s; a step shorter than a 1-kHz IMU's sample interval"
+        " adds nothing (F is constant across an interval) and multiplies the run time, and the"
+        " series Φ = I + FΔt + … stays accurate for steps far below the 84-min Schuler period",
+    )
+    specific_force_time_constant_s: float = _within(
         0.0,
-        ge=0,
-        description="low-pass of the specific force in F against vibration (0: step mean;"
-        " fusion.error_model.SpecificForceFilter)",
+        0,
+        60,
+        "low-pass of the specific force in F against vibration, s (0: step mean;"
+        " fusion.error_model.SpecificForceFilter); a minute smooths away real manoeuvres",
     )
-    lock_window_s: float = Field(
+    lock_window_s: float = _within(
         3.0,
-        gt=0,
-        description="a gated plugin whose every update over this window was rejected has lost"
-        " lock: the filter is re-initialized from it alone where it can (fusion.lock)",
+        0.1,
+        600,
+        "a gated plugin whose every update over this window (s) was rejected has lost lock:"
+        " the filter is re-initialized from it alone where it can (fusion.lock)",
     )
-    lock_min_updates: int = Field(
-        10, ge=1, description="updates the lock window must hold before a lost lock counts"
+    lock_min_updates: int = _within(
+        10, 1, 10000, "updates the lock window must hold before a lost lock counts"
     )
     observable_force: bool = Field(
         True,
@@ -191,23 +313,38 @@ class FilterOptions(_Strict):
     discretization: Literal["series", "van_loan"] = "series"
     error_model: Literal["full", "low_speed"] = "full"
     coning_sculling: bool = True
-    initial_sigma_scale: float = Field(1.0, gt=0, description="multiplies meta.yaml sigmas")
+    initial_sigma_scale: float = _within(
+        1.0,
+        0.001,
+        1000,
+        "multiplies meta.yaml's initial sigmas; three decades either way (a 5-cm σ becomes"
+        " 50 m): beyond, the prior is meaningless and its variance swamps double precision",
+    )
 
 
 class PluginBlock(BaseModel):
     """One aiding source: its registered ``type``, an optional instance ``name``, a χ² gate,
     and the plugin's own options (validated by the plugin's options model)."""
 
-    model_config = ConfigDict(extra="allow")
+    model_config = ConfigDict(extra="allow", allow_inf_nan=False, validate_assignment=True)
 
     type: str
     name: str | None = None
     enabled: bool = True
-    gate_probability: float | None = Field(
-        None, gt=0, lt=1, description="reject updates whose NIS exceeds this χ² quantile"
+    gate_probability: float | None = _within(
+        None,
+        0,
+        1,
+        "reject updates whose NIS exceeds this χ² quantile, a probability (None: no gate)",
+        low_open=True,
+        high_open=True,
     )
-    max_rate_hz: float | None = Field(
-        None, gt=0, description="use at most this many epochs per second (None: every one)"
+    max_rate_hz: float | None = _within(
+        None,
+        0.001,
+        10000,
+        "use at most this many epochs per second (None: every one); no aiding sensor runs"
+        " faster than 10 kHz",
     )
     local: str | None = Field(
         None, description="federated: the local filter this plugin joins (default: its name)"
@@ -233,8 +370,11 @@ class SmootherOptions(_Strict):
     """RTS smoothing (seed 000 §3.4): off, over the whole recording, or online at face ends."""
 
     mode: Literal["off", "whole", "online"] = "off"
-    memory_budget_mb: float = Field(
-        256.0, ge=0, description="stored output rows beyond this spill to a temporary directory"
+    memory_budget_mb: float = _within(
+        256.0,
+        0,
+        1e6,
+        "stored output rows beyond this (MB) spill to a temporary directory; up to 1 TB",
     )
 
 
@@ -246,82 +386,105 @@ class ImuScreening(_Strict):
     ``|x_k − x_ref| ≤ floor + rate·(t_k − t_ref)`` per axis.
     """
 
-    max_angular_rate_rad_s: float = Field(
+    max_angular_rate_rad_s: float = _within(
         35.0,
-        gt=0,
-        description="largest |ω| per axis: the widest gyro range of MTi-class MEMS IMUs (MTi-1/"
+        0,
+        1000,
+        "largest |ω| per axis: the widest gyro range of MTi-class MEMS IMUs (MTi-1/"
         "-600 series ±2000 °/s = 34.9 rad/s); the real data reach 12.7 (hand-held BROAD) and"
-        " 9.7 rad/s (foot-mounted PyShoe), a shearer < 1 rad/s. A platform may set it lower",
+        " 9.7 rad/s (foot-mounted PyShoe), a shearer < 1 rad/s. A platform may set it lower; up"
+        " to 1000 rad/s, above any gyro's range (±20000 °/s = 349 rad/s)",
+        low_open=True,
     )
-    max_specific_force_mps2: float = Field(
+    max_specific_force_mps2: float = _within(
         160.0,
-        gt=0,
-        description="largest |f| per axis: the MTi-1/-600 series' ±16 g (156.9 m/s²); foot-"
-        "mounted PyShoe heel strikes reach 78 m/s², a shearer ≈ 11 m/s²",
+        0,
+        10000,
+        "largest |f| per axis: the MTi-1/-600 series' ±16 g (156.9 m/s²); foot-"
+        "mounted PyShoe heel strikes reach 78 m/s², a shearer ≈ 11 m/s²; up to 1000 g, the range"
+        " of shock-rated accelerometers",
+        low_open=True,
     )
-    max_angular_acceleration_rad_s2: float = Field(
+    max_angular_acceleration_rad_s2: float = _within(
         1.0e4,
-        gt=0,
-        description="largest |Δω|/Δt between a sample and the last accepted one: ≈ 6× the"
+        0,
+        1e7,
+        "largest |Δω|/Δt between a sample and the last accepted one: ≈ 6× the"
         " steepest step in the real data (a heel strike, 8.7 rad/s between two 200-Hz"
-        " samples = 1760 rad/s²); a shearer's vibration stays below 20 rad/s²",
+        " samples = 1760 rad/s²); a shearer's vibration stays below 20 rad/s²; up to 1000× the"
+        " default",
+        low_open=True,
     )
-    max_jerk_mps3: float = Field(
+    max_jerk_mps3: float = _within(
         1.0e5,
-        gt=0,
-        description="largest |Δf|/Δt between a sample and the last accepted one: ≈ 4.5× the"
+        0,
+        1e8,
+        "largest |Δf|/Δt between a sample and the last accepted one: ≈ 4.5× the"
         " steepest step in the real data (a heel strike, 112 m/s² in 5 ms = 22000 m/s³); a"
-        " shearer's cutting vibration stays near 100 m/s³",
+        " shearer's cutting vibration stays near 100 m/s³; up to 1000× the default",
+        low_open=True,
     )
-    angular_rate_step_floor_rad_s: float = Field(
+    angular_rate_step_floor_rad_s: float = _within(
         0.1,
-        ge=0,
-        description="step always allowed in ω (noise and vibration of one sample; 0.1 rad/s is"
-        " > 50σ of an MTi's 100-Hz gyro noise)",
+        0,
+        1000,
+        "step always allowed in ω (noise and vibration of one sample; 0.1 rad/s is"
+        " > 50σ of an MTi's 100-Hz gyro noise); up to the largest range limit",
     )
-    specific_force_step_floor_mps2: float = Field(
+    specific_force_step_floor_mps2: float = _within(
         1.0,
-        ge=0,
-        description="step always allowed in f (one sample's noise and vibration; a shearer's"
-        " cutting vibration is ≈ 0.3 m/s² per sample)",
+        0,
+        10000,
+        "step always allowed in f (one sample's noise and vibration; a shearer's"
+        " cutting vibration is ≈ 0.3 m/s² per sample); up to the largest range limit",
     )
-    recovery_samples: int = Field(
+    recovery_samples: int = _within(
         5,
-        ge=1,
-        description="after this many consecutive samples rejected by a step limit the next one"
-        " is accepted as the new reference, so a real step never locks the screen out",
+        1,
+        1000,
+        "after this many consecutive samples rejected by a step limit the next one"
+        " is accepted as the new reference, so a real step never locks the screen out; up to 1000",
     )
 
 
 class OdometerScreening(_Strict):
     """Physical-plausibility limits of the odometer speed (:mod:`fusion.screening`)."""
 
-    max_speed_mps: float = Field(
+    max_speed_mps: float = _within(
         5.0,
-        gt=0,
-        description="largest |speed|: 18 km/h, above the fastest machine of the simulated"
+        0,
+        1000,
+        "largest |speed|: 18 km/h, above the fastest machine of the simulated"
         " scenarios (70 m/min ≈ 1.2 m/s), 7× a shearer's haulage (≤ 30–40 m/min) and at the"
-        " usual underground limit of rubber-tyred vehicles; a faster vehicle sets its own",
+        " usual underground limit of rubber-tyred vehicles; a faster vehicle sets its own; up to"
+        " 1000 m/s, faster than any vehicle that carries an IMU on the ground",
+        low_open=True,
     )
-    max_acceleration_mps2: float = Field(
+    max_acceleration_mps2: float = _within(
         10.0,
-        gt=0,
-        description="largest |Δspeed|/Δt between a reading and the last accepted one: ≈ 1 g,"
-        " the tyre-friction limit of any wheeled vehicle (a shearer ramps at 0.02 m/s²)",
+        0,
+        1000,
+        "largest |Δspeed|/Δt between a reading and the last accepted one: ≈ 1 g,"
+        " the tyre-friction limit of any wheeled vehicle (a shearer ramps at 0.02 m/s²); up to"
+        " 100 g",
+        low_open=True,
     )
-    speed_step_floor_mps: float = Field(
+    speed_step_floor_mps: float = _within(
         5.0,
-        ge=0,
-        description="speed step always allowed: an encoder's count steps a reading by"
+        0,
+        1000,
+        "speed step always allowed: an encoder's count steps a reading by"
         " 1 / (counts per metre × interval), 1 m/s for 50 counts/m at 50 Hz, and its carried"
         " remainder makes the readings alternate between count levels; a rejected one would"
-        " lose its travel (0.05 m/s rejected 5–10 % of a quantized encoder's readings)",
+        " lose its travel (0.05 m/s rejected 5–10 % of a quantized encoder's readings); up to the"
+        " largest speed limit",
     )
-    recovery_samples: int = Field(
+    recovery_samples: int = _within(
         3,
-        ge=1,
-        description="after this many consecutive readings rejected by the acceleration limit"
-        " the next one is accepted as the new reference",
+        1,
+        1000,
+        "after this many consecutive readings rejected by the acceleration limit"
+        " the next one is accepted as the new reference; up to 1000",
     )
 
 
@@ -329,17 +492,22 @@ class MagnetometerScreening(_Strict):
     """Plausible band of the magnetic field norm (:mod:`fusion.screening`). Interference inside
     the band is the magnetometer plugin's indicator's business."""
 
-    min_field_uT: float = Field(
+    min_field_uT: float = _within(
         5.0,
-        ge=0,
-        description="smallest |B|: the earth's field is 22–67 µT everywhere; steel around a"
-        " sensor distorts it but does not cancel it (an all-zero reading is a dead sensor)",
+        0,
+        10000,
+        "smallest |B|: the earth's field is 22–67 µT everywhere; steel around a"
+        " sensor distorts it but does not cancel it (an all-zero reading is a dead sensor); up to"
+        " 10 mT, far above any magnetometer's range",
     )
-    max_field_uT: float = Field(
+    max_field_uT: float = _within(
         1000.0,
-        gt=0,
-        description="largest |B|: above the ±800 µT range of MTi-class magnetometers (the"
-        " BROAD trials with a magnet 1 cm from the sensor reach 86 µT)",
+        0,
+        10000,
+        "largest |B|: above the ±800 µT range of MTi-class magnetometers (the"
+        " BROAD trials with a magnet 1 cm from the sensor reach 86 µT); up to 10 mT, far above"
+        " any magnetometer's range",
+        low_open=True,
     )
 
     @model_validator(mode="after")
@@ -352,52 +520,69 @@ class MagnetometerScreening(_Strict):
 class UwbScreening(_Strict):
     """Plausible UWB ranges (:mod:`fusion.screening`); negative ones the reader refuses."""
 
-    max_range_m: float = Field(
+    max_range_m: float = _within(
         300.0,
-        gt=0,
-        description="largest range: the reach of DW1000-class UWB at its lowest data rate in"
-        " line of sight (≈ 290 m); the simulated face's anchors answer within 40 m",
+        0,
+        10000,
+        "largest range: the reach of DW1000-class UWB at its lowest data rate in"
+        " line of sight (≈ 290 m); the simulated face's anchors answer within 40 m; up to 10 km,"
+        " 30× any UWB's reach",
+        low_open=True,
     )
 
 
 class PositionScreening(_Strict):
     """Plausibility of position fixes (:mod:`fusion.screening`)."""
 
-    min_sigma_m: float = Field(
+    min_sigma_m: float = _within(
         1.0e-5,
-        gt=0,
-        description="smallest σ per axis: 10 µm, a laser tracker's accuracy (no instrument"
-        " positions better; a smaller σ would pin the filter to the fix)",
+        0,
+        1000,
+        "smallest σ per axis: 10 µm, a laser tracker's accuracy (no instrument"
+        " positions better; a smaller σ would pin the filter to the fix); up to 1 km",
+        low_open=True,
     )
-    max_sigma_m: float = Field(
+    max_sigma_m: float = _within(
         1000.0,
-        gt=0,
-        description="largest σ per axis: a fix this vague says nothing at a site's scale, and"
-        " huge values overflow the variance σ²",
+        0,
+        1e6,
+        "largest σ per axis: a fix this vague says nothing at a site's scale, and"
+        " huge values overflow the variance σ²; up to 1000 km (its variance stays far inside"
+        " double precision)",
+        low_open=True,
     )
-    max_distance_from_origin_m: float = Field(
+    max_distance_from_origin_m: float = _within(
         1.0e5,
-        gt=0,
-        description="largest distance of a fix from the recording's origin: 100 km, beyond"
-        " any site that one local ENU frame describes",
+        0,
+        1e7,
+        "largest distance of a fix from the recording's origin: 100 km, beyond"
+        " any site that one local ENU frame describes; up to 10000 km, the Earth's quarter"
+        " circumference",
+        low_open=True,
     )
-    max_speed_mps: float = Field(
+    max_speed_mps: float = _within(
         100.0,
-        gt=0,
-        description="largest speed between a fix and the last accepted one: 360 km/h, above"
-        " any ground vehicle (the real car drive reaches 16 m/s)",
+        0,
+        1000,
+        "largest speed between a fix and the last accepted one: 360 km/h, above"
+        " any ground vehicle (the real car drive reaches 16 m/s); up to 1000 m/s, faster than any"
+        " vehicle that carries an IMU on the ground",
+        low_open=True,
     )
-    sigma_multiple: float = Field(
+    sigma_multiple: float = _within(
         5.0,
-        gt=0,
-        description="the jump between two fixes may also exceed max_speed_mps·Δt by this many"
-        " σ of the two fixes combined",
+        0,
+        100,
+        "the jump between two fixes may also exceed max_speed_mps·Δt by this many"
+        " σ of the two fixes combined; up to 100σ",
+        low_open=True,
     )
-    recovery_samples: int = Field(
+    recovery_samples: int = _within(
         3,
-        ge=1,
-        description="after this many consecutive fixes rejected by the speed limit the next"
-        " one is accepted as the new reference",
+        1,
+        1000,
+        "after this many consecutive fixes rejected by the speed limit the next"
+        " one is accepted as the new reference; up to 1000",
     )
 
     @model_validator(mode="after")
@@ -410,11 +595,14 @@ class PositionScreening(_Strict):
 class SupportScreening(_Strict):
     """Plausible AFC pushes (:mod:`fusion.screening`)."""
 
-    max_advance_m: float = Field(
+    max_advance_m: float = _within(
         2.0,
-        gt=0,
-        description="largest push: a web is at most 1.2 m deep (the simulated carrier pushes"
-        " 1.19 m) and push rams have no longer stroke; a push is never negative",
+        0,
+        10,
+        "largest push: a web is at most 1.2 m deep (the simulated carrier pushes"
+        " 1.19 m) and push rams have no longer stroke; a push is never negative; up to 10 m, 8×"
+        " the deepest web",
+        low_open=True,
     )
 
 
@@ -434,20 +622,33 @@ class ScreeningOptions(_Strict):
 class StreamOptions(_Strict):
     """How streams are read before any plugin sees them."""
 
-    odometer_max_rate_hz: float | None = Field(
+    odometer_max_rate_hz: float | None = _within(
         5.0,
-        gt=0,
-        description="odometer readings are combined by their exact travel into intervals of at"
-        " least 1/rate (fusion.encoder: an encoder's count quantization averages out, while a slip"
-        " is still seen within a second or two); None: as recorded",
+        0.01,
+        10000,
+        "odometer readings are combined by their exact travel into intervals of at least 1/rate"
+        " (fusion.encoder: an encoder's count quantization averages out, while a slip is still"
+        " seen within a second or two); None: as recorded",
     )
 
 
 class OutputOptions(_Strict):
     """What ``fusion run`` writes."""
 
-    rate_hz: float | None = Field(None, gt=0, description="None: every covariance step")
+    rate_hz: float | None = _within(
+        None,
+        0.01,
+        1000,
+        "output epochs per second; None: every covariance step. Above 1 kHz, faster than any"
+        " IMU, rows would repeat; below 0.01 Hz (one row per 100 s) a shearer's pass along a"
+        " face is not seen",
+    )
     plots: bool = True
+    states: bool = Field(
+        True,
+        description="record every estimated state and its 1-sigma at the output epochs"
+        " (RunResult.states) and write states.csv",
+    )
 
 
 class FusionConfig(_Strict):
@@ -499,14 +700,34 @@ def parse_config(data: Any, source: str = "<config>") -> FusionConfig:
         raise ConfigError("\n".join(error_lines(source, FusionConfig, exc))) from None
 
 
+def _packaged_configs() -> Path:
+    installed = Path(__file__).resolve().parent / "configs"
+    return installed if installed.is_dir() else Path(__file__).resolve().parents[1] / "configs"
+
+
+PACKAGED_CONFIGS = _packaged_configs()
+"""The configurations shipped with this copy of fusion: ``fusion/configs/`` in an installed wheel
+(pyproject.toml maps the repository's ``configs/`` there), the repository's ``configs/`` in a
+clone or an editable install."""
+
+
 def find_config(name_or_path: str | Path) -> Path:
-    """A config path as given, or ``configs/NAME.yaml`` in the working tree or the repository."""
+    """The configuration file that ``name_or_path`` names, from any working directory.
+
+    In order: the path as given, when it exists; else ``configs/NAME.yaml`` under the working
+    directory; else ``NAME.yaml`` among :data:`PACKAGED_CONFIGS`. NAME is the argument with or
+    without ``.yaml``, and ``configs/NAME.yaml`` counts as NAME too, so a clone's command line
+    (``fusion run --config configs/sins_only.yaml``) works anywhere fusion is installed. Any
+    other path, or a name found nowhere, is returned as given: reading it then fails with one
+    line naming it (:func:`load_config`).
+    """
     path = Path(name_or_path)
-    if path.exists():
+    if path.exists() or path.is_absolute() or path.parent not in (Path("."), Path("configs")):
         return path
-    for root in (Path.cwd(), Path(__file__).resolve().parents[1]):
-        candidate = root / "configs" / f"{name_or_path}.yaml"
-        if candidate.exists():
+    name = path.name.removesuffix(".yaml")
+    for directory in (Path("configs"), PACKAGED_CONFIGS):
+        candidate = directory / f"{name}.yaml"
+        if candidate.is_file():
             return candidate
     return path
 

@@ -65,6 +65,7 @@ from fusion.rows import RowBuffer
 from fusion.screening import ScreeningReport, screen_recording
 from fusion.smoother import WindowedSmoother
 from fusion.solution import Solution
+from fusion.state_history import StateHistory, StateRecorder
 from fusion.strapdown import HGT, LAT, LON, NAV_SIZE, Q0, VEL, NavState, Strapdown
 from fusion.yaw_nullspace import constrain_rows, constrain_transition, turn_direction
 
@@ -101,6 +102,9 @@ class RunResult:
     observability: Observability | None = None
     """Share of each state's prior variance the data removed (:mod:`fusion.observability`);
     None for an architecture that estimates nothing (dead reckoning, standalone)."""
+    states: StateHistory | None = None
+    """Every estimated state and its 1-σ at the output epochs (:mod:`fusion.state_history`);
+    None with ``output.states: false`` or an architecture that estimates nothing."""
 
     @property
     def duration_s(self) -> float:
@@ -343,6 +347,9 @@ class Engine:
         out_nav.append(sins.nav)
         out_cov.append(bank.position_covariance())
         observed.sample(t0, bank.estimate()[1])
+        recorder = StateRecorder(self.layout) if self.config.output.states else None
+        if recorder is not None:
+            recorder.record(*self._estimate(bank, sins))
         smoother = self._smoother(bank)
         if smoother is not None:
             state = bank.smoothing_state()
@@ -409,6 +416,8 @@ class Engine:
                 out_t.append(te)
                 out_nav.append(sins.nav)
                 out_cov.append(bank.position_covariance())
+                if recorder is not None:
+                    recorder.record(*self._estimate(bank, sins))
                 if observed.due(te):
                     observed.sample(te, bank.estimate()[1])
             if progress is not None and (i // report_every) != (j // report_every):
@@ -419,9 +428,7 @@ class Engine:
         if smoother is not None:
             smoother.close_window()
             smoothed = self._solution(*smoother.take_rows())
-        final, final_covariance = bank.estimate()
-        final[self.layout.slice("gyro_bias")] += sins.gyro_bias
-        final[self.layout.slice("accel_bias")] += sins.accel_bias
+        final, final_covariance = self._estimate(bank, sins)
         return RunResult(
             solution=solution,
             layout=self.layout,
@@ -437,7 +444,18 @@ class Engine:
             smoother_rejected=smoother.rejected if smoother is not None else 0,
             screening=self.screening,
             observability=observed.report(final_covariance),
+            states=recorder.history(solution, self.frame) if recorder is not None else None,
         )
+
+    def _estimate(
+        self, bank: FilterBank, sins: Strapdown
+    ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """Estimate and covariance of every state; the IMU biases whole (the part the SINS
+        already compensates added to the filter's residual)."""
+        estimate, covariance = bank.estimate()
+        estimate[self.layout.slice(GYRO_BIAS)] += sins.gyro_bias
+        estimate[self.layout.slice(ACCEL_BIAS)] += sins.accel_bias
+        return estimate, covariance
 
     def _turn(self, layout: StateLayout, sins: Strapdown) -> NDArray[np.float64]:
         """The error of a unit turn about the vertical through the frame's origin at the

@@ -56,7 +56,6 @@ from collections.abc import Iterable
 from dataclasses import dataclass, field
 from typing import Literal
 
-import numba
 import numpy as np
 import scipy.linalg
 from numpy.typing import ArrayLike, NDArray
@@ -79,6 +78,20 @@ VELOCITY, ATTITUDE, POSITION, GYRO_BIAS, ACCEL_BIAS = (
 )
 COMMON_BLOCKS = (VELOCITY, ATTITUDE, POSITION, GYRO_BIAS, ACCEL_BIAS)
 N_COMMON = 15
+
+STATE_UNITS: dict[str, float] = {
+    "": 1.0,  # not declared: the state's own unit, named nowhere
+    "m": 1.0,
+    "m_s": 1.0,
+    "uT": 1.0,
+    "deg": 180.0 / math.pi,  # from rad
+    "deg_h": 180.0 / math.pi * 3600.0,  # from rad/s
+    "mg": 1.0 / (1e-3 * G0),  # from m/s²
+    "ppm": 1e6,  # from a ratio
+    "pct": 100.0,  # from a ratio
+}
+"""The units a state is shown in (``states.csv`` column names) and the factor from the state's
+own unit (SI: m, m/s, rad, rad/s, m/s², ratio; µT for a magnetic field) to it."""
 
 
 @dataclass(frozen=True)
@@ -106,6 +119,9 @@ class StateBlock:
     leaves_rest
         +1 or −1: the only direction in which the state leaves ``rest`` (a slipping wheel turns
         more than the machine travels, so its slip ratio only rises from 0); 0: either.
+    unit
+        The unit users read the state in, a key of :data:`STATE_UNITS` (``"deg_h"`` for a gyro
+        bias held in rad/s); ``""``: its own unit, unnamed.
     """
 
     name: str
@@ -116,6 +132,13 @@ class StateBlock:
     may_jump: bool = False
     rest: float | None = None
     leaves_rest: int = 0
+    unit: str = ""
+
+    def __post_init__(self) -> None:
+        if self.unit not in STATE_UNITS:
+            raise ValueError(
+                f"state block {self.name!r}: unit {self.unit!r} is not one of {list(STATE_UNITS)}"
+            )
 
     @property
     def size(self) -> int:
@@ -242,15 +265,22 @@ def common_blocks(
         imu.bias_random_walk
     )
     return (
-        StateBlock(VELOCITY, enu, tuple(np.asarray(sigma_velocity, dtype=float).tolist())),
-        StateBlock(ATTITUDE, enu, tuple(np.asarray(sigma_attitude, dtype=float).tolist())),
-        StateBlock(POSITION, enu, tuple(np.asarray(sigma_position, dtype=float).tolist())),
+        StateBlock(
+            VELOCITY, enu, tuple(np.asarray(sigma_velocity, dtype=float).tolist()), unit="m_s"
+        ),
+        StateBlock(
+            ATTITUDE, enu, tuple(np.asarray(sigma_attitude, dtype=float).tolist()), unit="deg"
+        ),
+        StateBlock(
+            POSITION, enu, tuple(np.asarray(sigma_position, dtype=float).tolist()), unit="m"
+        ),
         StateBlock(
             GYRO_BIAS,
             xyz,
             (imu.gyro_bias,) * 3,
             (2.0 * imu.gyro_bias_instability**2 / tau,) * 3,
             tau if gm else None,
+            unit="deg_h",
         ),
         StateBlock(
             ACCEL_BIAS,
@@ -258,11 +288,12 @@ def common_blocks(
             (imu.accel_bias,) * 3,
             (2.0 * imu.accel_bias_instability**2 / tau,) * 3,
             tau if gm else None,
+            unit="mg",
         ),
     )
 
 
-@numba.njit(cache=True)
+@kernels.jit
 def _fill_sins_dynamics(
     f: NDArray[np.float64],
     nav: NDArray[np.float64],

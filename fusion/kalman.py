@@ -46,11 +46,12 @@ from __future__ import annotations
 from dataclasses import dataclass
 from functools import lru_cache
 
-import numba
 import numpy as np
 import scipy.linalg
 import scipy.stats
 from numpy.typing import NDArray
+
+from fusion import kernels
 
 
 @lru_cache(maxsize=256)
@@ -357,7 +358,7 @@ def whiten(lower: NDArray[np.float64], b: NDArray[np.float64]) -> NDArray[np.flo
     return _forward_substitution(lower, np.ascontiguousarray(b, dtype=np.float64))
 
 
-@numba.njit(cache=True)
+@kernels.jit
 def _forward_substitution(
     lower: NDArray[np.float64], b: NDArray[np.float64]
 ) -> NDArray[np.float64]:
@@ -370,7 +371,7 @@ def _forward_substitution(
     return y
 
 
-@numba.njit(cache=True)
+@kernels.jit
 def _back_substitution(lower: NDArray[np.float64], b: NDArray[np.float64]) -> NDArray[np.float64]:
     """Solve ``Lᵀ y = b`` for lower-triangular L; ``b`` (m, k)."""
     y = b.copy()
@@ -382,7 +383,7 @@ def _back_substitution(lower: NDArray[np.float64], b: NDArray[np.float64]) -> ND
     return y
 
 
-@numba.njit(cache=True)
+@kernels.jit
 def _s_cholesky(
     p: NDArray[np.float64], h: NDArray[np.float64], r: NDArray[np.float64]
 ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
@@ -392,7 +393,7 @@ def _s_cholesky(
     return np.linalg.cholesky(0.5 * (s + s.T)).astype(np.float64), ph_t
 
 
-@numba.njit(cache=True)
+@kernels.jit
 def _innovation(
     x: NDArray[np.float64],
     p: NDArray[np.float64],
@@ -405,7 +406,7 @@ def _innovation(
     return z - h @ x, chol, ph_t
 
 
-@numba.njit(cache=True)
+@kernels.jit
 def _joseph(
     x: NDArray[np.float64],
     p: NDArray[np.float64],

@@ -1,28 +1,73 @@
-"""numba-compiled forms of the scalar earth and attitude functions, for the compiled hot loops.
+"""numba-compiled forms of the scalar earth and attitude functions, for the compiled hot loops,
+and :func:`jit`, the one way the package compiles a kernel.
 
 The functions of :mod:`fusion.earth` and :mod:`fusion.attitude` are written as plain arithmetic,
-so they compile unchanged; this module compiles each once (cached on disk) for the strapdown and
-error-model kernels, and adds the two 3-vector helpers those kernels need.
+so they compile unchanged; this module compiles each once (cached on disk where numba can write,
+see :func:`jit`) for the strapdown and error-model kernels, and adds the two 3-vector helpers
+those kernels need.
 """
 
 from __future__ import annotations
 
+import functools
+import inspect
+import logging
+from collections.abc import Callable
+from pathlib import Path
+from typing import TypeVar
+
 import numba
 import numpy as np
+from numba.core.dispatcher import Dispatcher
 from numpy.typing import NDArray
 
 from fusion import attitude, earth
 
-radii = numba.njit(cache=True)(earth.radii)
-normal_gravity = numba.njit(cache=True)(earth.normal_gravity)
-gravity_dlat = numba.njit(cache=True)(earth.normal_gravity_latitude_gradient)
-gravity_dh = numba.njit(cache=True)(earth.normal_gravity_height_gradient)
-quat_multiply = numba.njit(cache=True)(attitude.quat_multiply)
-quat_from_rotvec = numba.njit(cache=True)(attitude.quat_from_rotvec)
-dcm_from_quat = numba.njit(cache=True)(attitude.dcm_from_quat)
+_log = logging.getLogger(__name__)
+
+_Function = TypeVar("_Function", bound=Callable[..., object])
 
 
-@numba.njit(cache=True)
+def jit(function: _Function) -> Dispatcher[_Function]:
+    """``numba.njit(cache=True)(function)``, or without the on-disk cache where numba has
+    nowhere to write it.
+
+    numba caches a compiled kernel in ``NUMBA_CACHE_DIR`` when it is set, else in the
+    ``__pycache__`` beside its source, else in the user's cache directory; with none of them
+    writable (a read-only site-packages and no writable HOME) ``cache=True`` raises "no locator
+    available" at import. The kernel is then compiled in every process instead (the same
+    results, 30–60 s more on its first call), and one warning per source directory says so:
+    all of fusion's kernels live in one, so a process warns once.
+    """
+    try:
+        return numba.njit(cache=True)(function)
+    except RuntimeError as exc:
+        if "no locator available" not in str(exc):
+            raise
+    _warn_no_cache(Path(inspect.getfile(function)).parent)
+    return numba.njit(function)
+
+
+@functools.cache
+def _warn_no_cache(source_dir: Path) -> None:
+    _log.warning(
+        "numba cannot cache the compiled kernels of %s (no writable NUMBA_CACHE_DIR, __pycache__"
+        " or user cache directory): each process compiles them again (30-60 s on first use);"
+        " set NUMBA_CACHE_DIR to a writable directory to keep them",
+        source_dir,
+    )
+
+
+radii = jit(earth.radii)
+normal_gravity = jit(earth.normal_gravity)
+gravity_dlat = jit(earth.normal_gravity_latitude_gradient)
+gravity_dh = jit(earth.normal_gravity_height_gradient)
+quat_multiply = jit(attitude.quat_multiply)
+quat_from_rotvec = jit(attitude.quat_from_rotvec)
+dcm_from_quat = jit(attitude.dcm_from_quat)
+
+
+@jit
 def cross(a: NDArray[np.float64], b: NDArray[np.float64]) -> NDArray[np.float64]:
     """``a × b`` of two 3-vectors."""
     return np.array(
@@ -30,13 +75,13 @@ def cross(a: NDArray[np.float64], b: NDArray[np.float64]) -> NDArray[np.float64]
     )
 
 
-@numba.njit(cache=True)
+@jit
 def skew(v: NDArray[np.float64]) -> NDArray[np.float64]:
     """``(v×)`` of a 3-vector."""
     return np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
 
 
-@numba.njit(cache=True)
+@jit
 def frame_rates(
     lat: float, height: float, v: NDArray[np.float64]
 ) -> tuple[float, float, NDArray[np.float64], NDArray[np.float64]]:

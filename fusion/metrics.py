@@ -1,21 +1,23 @@
 """Accuracy metrics of a trajectory estimate against the reference trajectory (``truth.csv``).
 
-:func:`compute_metrics` interpolates the truth to the solution epochs and summarizes the errors
+:func:`compute_metrics` scores the estimate at the truth's epochs and summarizes the errors
 (estimate minus truth) in a JSON-serializable dict; :func:`write_metrics_json` writes the
 ``metrics.json`` of ``fusion run`` (one entry per solution file).
 
 Conventions
 -----------
-* Truth is interpolated linearly in time for position and velocity; attitude angles are
+* Errors are taken at the truth epochs inside the solution's time span, the solution (and its
+  sigma or covariance) interpolated linearly onto them (:func:`interpolate_solution`): a truth
+  sampled at 1 Hz through a turn is then never replaced by its chord.  Attitude angles are
   unwrapped along time before the linear interpolation, and every attitude error is wrapped to
-  ``[-180, 180)`` degrees.  Solution epochs outside the truth's time span are excluded (counted in
-  ``epochs_excluded``).
+  ``[-180, 180)`` degrees.  Solution epochs outside the truth's time span are not scored
+  (counted in ``epochs_excluded``), nor truth epochs outside the solution's
+  (``truth_epochs_excluded``).
 * ``std`` is the population standard deviation (``ddof=0``), so ``rms² = mean² + std²``.
-* The cutting cycle of an epoch is the ``cycle`` of the last truth sample at or before it.
-  ``sep_per_cycle[c]`` is the spherical error probable of cycle ``c >= 1``, taken here as the
-  empirical median of the 3-D position error norm (the radius of the sphere holding 50 % of the
-  epochs of that cycle); ``None`` when no solution epoch falls in that cycle.  ``sep`` is the same
-  over all epochs.
+* The cutting cycle of an epoch is the truth's ``cycle`` there.  ``sep_per_cycle[c]`` is the
+  spherical error probable of cycle ``c >= 1``, taken here as the empirical median of the 3-D
+  position error norm (the radius of the sphere holding 50 % of the epochs of that cycle);
+  ``None`` when no epoch is scored in that cycle.  ``sep`` is the same over all epochs.
 * ``nees`` checks the filter's consistency: ``normalized_rms`` is ``RMS(error / sigma)`` per
   axis (1 for a consistent filter), with sigma from the diagonal of ``position_covariance`` when
   the solution has one (``source: "covariance"``), else from ``sigma_position``.  With a covariance
@@ -28,16 +30,24 @@ from __future__ import annotations
 
 import json
 import math
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+from numpy.typing import NDArray
 from scipy.stats import chi2
 
 from fusion.recording import FloatArray, TruthData
 from fusion.solution import Solution
 
-__all__ = ["compute_metrics", "interpolate_truth", "write_metrics_json"]
+__all__ = [
+    "SolutionAt",
+    "compute_metrics",
+    "interpolate_solution",
+    "interpolate_truth",
+    "write_metrics_json",
+]
 
 _AXES = ("e", "n", "u")
 _ANGLES = ("roll", "pitch", "yaw")
@@ -93,6 +103,46 @@ def interpolate_truth(
     )
 
 
+@dataclass(frozen=True)
+class SolutionAt:
+    """A solution interpolated linearly onto given epochs (:func:`interpolate_solution`)."""
+
+    inside: NDArray[np.bool_]
+    """Epochs within the solution's time span; the arrays below have one row per such epoch."""
+    t: FloatArray
+    position: FloatArray
+    velocity: FloatArray
+    attitude: FloatArray
+    """Roll, pitch, yaw (rad), interpolated after unwrapping (so possibly outside ±pi)."""
+    sigma_position: FloatArray
+    position_covariance: FloatArray | None
+    """Element-wise interpolation of the covariance (a convex combination: still PSD)."""
+
+
+def interpolate_solution(solution: Solution, t: FloatArray) -> SolutionAt:
+    """``solution`` at the epochs ``t`` (s) that lie inside its time span."""
+    t = np.asarray(t, dtype=np.float64)
+    st = solution.t
+    inside = (t >= st[0]) & (t <= st[-1]) if st.size else np.zeros(t.shape, dtype=bool)
+    ti = t[inside]
+
+    def interp(values: FloatArray) -> FloatArray:
+        flat = values.reshape(values.shape[0], -1)
+        cols = [np.interp(ti, st, flat[:, k]) for k in range(flat.shape[1])]
+        return np.stack(cols, axis=-1).reshape((ti.size, *values.shape[1:]))
+
+    cov = solution.position_covariance
+    return SolutionAt(
+        inside=inside,
+        t=ti,
+        position=interp(solution.position),
+        velocity=interp(solution.velocity),
+        attitude=interp(np.unwrap(solution.attitude, axis=0)),
+        sigma_position=interp(solution.sigma_position),
+        position_covariance=None if cov is None else interp(cov),
+    )
+
+
 def _f(x: Any) -> float | None:
     """A JSON-safe float (None for NaN/inf)."""
     value = float(x)
@@ -118,14 +168,13 @@ def _normalized_rms(err: FloatArray, sigma: FloatArray) -> dict[str, float | Non
     return out
 
 
-def _nees(err: FloatArray, solution: Solution, inside: np.ndarray) -> dict[str, Any]:
-    cov = solution.position_covariance
-    if cov is None:
+def _nees(err: FloatArray, at: SolutionAt) -> dict[str, Any]:
+    p = at.position_covariance
+    if p is None:
         return {
             "source": "sigma_position",
-            "normalized_rms": _normalized_rms(err, solution.sigma_position[inside]),
+            "normalized_rms": _normalized_rms(err, at.sigma_position),
         }
-    p = cov[inside]
     sigma = np.sqrt(np.clip(np.diagonal(p, axis1=1, axis2=2), 0.0, None))
     try:
         sol = np.linalg.solve(p, err[:, :, None])[:, :, 0]
@@ -155,7 +204,9 @@ def compute_metrics(solution: Solution, truth: TruthData) -> dict[str, Any]:
     Returns
     -------
     dict
-        ``epochs``, ``epochs_excluded`` (outside the truth span), ``t_start``, ``t_end``;
+        ``epochs`` (truth epochs scored), ``epochs_excluded`` (solution epochs outside the
+        truth's span), ``truth_epochs_excluded`` (truth epochs outside the solution's span),
+        ``t_start``, ``t_end`` (first and last epoch scored);
         ``position`` {axis e/n/u: {max_abs, mean_abs, mean, std, rms}} (m);
         ``horizontal_rms``, ``horizontal_max``, ``rms_3d``, ``max_3d`` (m);
         ``velocity`` {axis: {rms, max_abs}} (m/s);
@@ -166,15 +217,17 @@ def compute_metrics(solution: Solution, truth: TruthData) -> dict[str, Any]:
     Raises
     ------
     ValueError
-        When no solution epoch lies inside the truth's time span.
+        When no truth epoch lies inside the solution's time span.
     """
-    inside, pos, vel, att, cycle = interpolate_truth(truth, solution.t)
-    used = int(np.count_nonzero(inside))
+    at = interpolate_solution(solution, truth.t)
+    used = at.t.size
     if used == 0:
-        raise ValueError("no solution epoch lies inside the time span of the truth trajectory")
-    err = solution.position[inside] - pos
-    verr = solution.velocity[inside] - vel
-    aerr = np.rad2deg(_wrap_pi(solution.attitude[inside] - att))
+        raise ValueError("no truth epoch lies inside the time span of the solution")
+    err = at.position - truth.position[at.inside]
+    verr = at.velocity - truth.velocity[at.inside]
+    aerr = np.rad2deg(_wrap_pi(at.attitude - truth.attitude[at.inside]))
+    cycle = truth.cycle[at.inside]
+    outside = (solution.t < truth.t[0]) | (solution.t > truth.t[-1])
     horiz = np.hypot(err[:, 0], err[:, 1])
     norm3 = np.linalg.norm(err, axis=1)
 
@@ -184,12 +237,12 @@ def compute_metrics(solution: Solution, truth: TruthData) -> dict[str, Any]:
             sel = cycle == c
             sep_per_cycle[int(c)] = _f(np.median(norm3[sel])) if sel.any() else None
 
-    t_used = solution.t[inside]
     return {
         "epochs": used,
-        "epochs_excluded": int(solution.t.size - used),
-        "t_start": _f(t_used[0]),
-        "t_end": _f(t_used[-1]),
+        "epochs_excluded": int(np.count_nonzero(outside)),
+        "truth_epochs_excluded": int(truth.t.size - used),
+        "t_start": _f(at.t[0]),
+        "t_end": _f(at.t[-1]),
         "position": {axis: _axis_stats(err[:, k]) for k, axis in enumerate(_AXES)},
         "horizontal_rms": _f(np.sqrt(np.mean(horiz**2))),
         "horizontal_max": _f(np.max(horiz)),
@@ -212,7 +265,7 @@ def compute_metrics(solution: Solution, truth: TruthData) -> dict[str, Any]:
         },
         "sep": _f(np.median(norm3)),
         "sep_per_cycle": sep_per_cycle,
-        "nees": _nees(err, solution, inside),
+        "nees": _nees(err, at),
     }
 
 

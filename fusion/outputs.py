@@ -1,28 +1,74 @@
-"""What ``fusion run`` writes: solution.csv, metrics.json (with truth), figures, and a summary."""
+"""What ``fusion run`` writes: solution.csv, metrics.json (with truth), figures, run.json, and a
+summary."""
 
 from __future__ import annotations
 
+import hashlib
+import json
+import sys
+import time
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass
+from datetime import UTC, datetime, timedelta
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from fusion import __version__
 from fusion.engine import RunResult
+from fusion.error_model import STATE_UNITS
 from fusion.fault_detection import ISOLATE, READMIT, FaultEvent
 from fusion.jumps import JUMP
 from fusion.metrics import compute_metrics, write_metrics_json
+from fusion.output_dir import FIGURE_FORMATS, RECORDING_FILES, RUN_JSON
 from fusion.recording import Recording
 from fusion.solution import write_solution
+from fusion.state_history import write_states
+
+
+@dataclass(frozen=True)
+class Invocation:
+    """The command that asked for a result and when it started (``run.json``)."""
+
+    command: list[str]
+    started_utc: datetime
+    started_clock: float
+    """``time.perf_counter()`` at the start, for the wall time."""
+
+    @classmethod
+    def now(cls, command: Sequence[str]) -> Invocation:
+        """An invocation starting now."""
+        return cls(list(command), datetime.now(UTC), time.perf_counter())
 
 
 def write_outputs(
-    result: RunResult, recording: Recording, out_dir: str | Path, *, plots: bool = True
+    result: RunResult,
+    recording: Recording,
+    out_dir: str | Path,
+    *,
+    plots: bool = True,
+    figure_format: str = "png",
+    invocation: Invocation | None = None,
+    recorded_as: Path | None = None,
 ) -> dict[str, Path]:
-    """Write the run's files into ``out_dir`` and return them by kind."""
+    """Write the run's files into ``out_dir``, ``run.json`` last, and return them by kind.
+
+    Files are written in place: ``fusion run`` gives a staging directory here
+    (:class:`fusion.output_dir.OutputTarget`). ``figure_format`` is ``png``, ``svg`` or ``pdf``.
+    ``invocation`` defaults to this Python process's command line, started when the engine
+    did. ``recorded_as`` is the recording's path for run.json when it is not ``recording.path``
+    (a recording staged beside this result and moved with it).
+    """
+    if figure_format not in FIGURE_FORMATS:
+        raise ValueError(f"figure format {figure_format!r}: not one of {', '.join(FIGURE_FORMATS)}")
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     files = {"solution": out / "solution.csv"}
     write_solution(result.solution, files["solution"])
+    if result.states is not None:
+        files["states"] = out / "states.csv"
+        write_states(result.states, files["states"])
     if result.config.filter.architecture == "federated" or result.faults:
         files["faults"] = out / "faults.csv"
         write_faults(result.faults, files["faults"])
@@ -45,14 +91,80 @@ def write_outputs(
         from fusion import plots as figures
 
         title = f"{result.config.name} on {result.recording_name}"
-        files["plan"] = figures.plot_plan_view(result.solution, truth, out / "plan.png", title)
+        ext = figure_format
+        files["plan"] = figures.plot_plan_view(result.solution, truth, out / f"plan.{ext}", title)
         if truth is not None:
-            files["errors"] = figures.plot_errors(result.solution, truth, out / "errors.png", title)
+            files["errors"] = figures.plot_errors(
+                result.solution, truth, out / f"errors.{ext}", title, smoothed=result.smoothed
+            )
         if result.observability is not None and result.observability.t.size > 1:
             files["observability"] = figures.plot_observability(
-                result.observability, out / "observability.png", title
+                result.observability, out / f"observability.{ext}", title
             )
+    files["run"] = write_run_json(
+        out / RUN_JSON,
+        result,
+        recording.path,
+        files.values(),
+        invocation
+        or Invocation(
+            list(sys.argv),
+            datetime.now(UTC) - timedelta(seconds=result.wall_time_s),
+            time.perf_counter() - result.wall_time_s,
+        ),
+        recorded_as,
+    )
     return files
+
+
+def write_run_json(
+    path: Path,
+    result: RunResult,
+    recording: Path | None,
+    written: Iterable[Path],
+    invocation: Invocation,
+    recorded_as: Path | None = None,
+) -> Path:
+    """``run.json``: how a result was made and what it holds.
+
+    Keys: ``fusion_version``; ``command`` (argument list); ``started_utc`` (ISO 8601);
+    ``wall_time_s`` (from the start to this file) and ``engine_wall_time_s``; ``recording``:
+    ``path`` (absolute: ``recorded_as`` when given, else ``recording``, the directory read; None
+    for a recording built in memory), ``name``, ``files`` {name: sha256} of its recording files
+    and ``sha256``, the digest of that listing as ``sha256sum`` prints it, sorted by name;
+    ``files`` {name: {bytes, sha256}} of every other file of the result (``written``: paths in
+    ``path``'s directory); ``config``, the configuration as used (every default filled in).
+    """
+    digests = {}
+    if recording is not None:
+        names = sorted(p.name for p in Path(recording).iterdir() if p.name in RECORDING_FILES)
+        digests = {name: _sha256(Path(recording) / name) for name in names}
+    listing = "".join(f"{digest}  {name}\n" for name, digest in digests.items())
+    record = {
+        "fusion_version": __version__,
+        "command": invocation.command,
+        "started_utc": invocation.started_utc.isoformat(timespec="milliseconds"),
+        "wall_time_s": round(time.perf_counter() - invocation.started_clock, 3),
+        "engine_wall_time_s": round(result.wall_time_s, 3),
+        "recording": {
+            "path": None if recording is None else str(Path(recorded_as or recording).resolve()),
+            "name": result.recording_name,
+            "files": digests,
+            "sha256": hashlib.sha256(listing.encode()).hexdigest() if digests else None,
+        },
+        "files": {
+            p.name: {"bytes": p.stat().st_size, "sha256": _sha256(p)}
+            for p in sorted(written, key=lambda p: p.name)
+        },
+        "config": result.config.model_dump(mode="json"),
+    }
+    path.write_text(json.dumps(record, indent=2, allow_nan=False) + "\n", encoding="utf-8")
+    return path
+
+
+def _sha256(path: Path) -> str:
+    with path.open("rb") as f:
+        return hashlib.file_digest(f, "sha256").hexdigest()
 
 
 def write_faults(events: list[FaultEvent], path: Path) -> None:
@@ -97,9 +209,10 @@ def summary(result: RunResult, recording: Recording) -> str:
     estimated = result.config.filter.architecture in ("centralized", "federated")
     for block in result.layout.blocks[3:] if estimated else ():
         est, sd = result.state_estimate(block.name)
+        scale, unit = STATE_UNITS[block.unit], block.unit.replace("_", "/")
         lines.append(
-            f"estimate   {block.name}: {np.array2string(est, precision=6)} "
-            f"± {np.array2string(sd, precision=6)}"
+            f"estimate   {block.name}: {np.array2string(est * scale, precision=4)} "
+            f"± {np.array2string(sd * scale, precision=4)} {unit}".rstrip()
         )
     if result.observability is not None:
         lines.append("observed   share of each state's prior variance the data removed:")

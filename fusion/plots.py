@@ -1,4 +1,7 @@
-"""Figures of a run: plan view of the estimate against truth, and errors with their ±3σ envelope."""
+"""Figures of a run: plan view of the estimate against truth, and errors with their ±3σ envelope.
+
+Each figure is written in the format its path's suffix names (``fusion run --format``: png, svg,
+pdf)."""
 
 from __future__ import annotations
 
@@ -7,9 +10,13 @@ from pathlib import Path
 import numpy as np
 from matplotlib.figure import Figure
 
+from fusion.metrics import interpolate_solution
 from fusion.observability import Observability
 from fusion.recording import TruthData
 from fusion.solution import Solution
+
+MAX_POINTS = 10_000
+"""Most epochs drawn per track in a figure against time."""
 
 ATTITUDE_UP = "attitude.u"
 """The heading's error state: the attitude error about the local up axis."""
@@ -33,21 +40,34 @@ def plot_plan_view(solution: Solution, truth: TruthData | None, path: Path, titl
     return path
 
 
-def plot_errors(solution: Solution, truth: TruthData, path: Path, title: str) -> Path:
-    """Position error per axis against time with the filter's ±3σ envelope."""
-    inside = (solution.t >= truth.t[0]) & (solution.t <= truth.t[-1])
-    t = solution.t[inside]
+def plot_errors(
+    solution: Solution,
+    truth: TruthData,
+    path: Path,
+    title: str,
+    *,
+    smoothed: Solution | None = None,
+) -> Path:
+    """Position error per axis against time with the filter's ±3σ envelope, at the truth epochs
+    as ``metrics.json`` scores them (every k-th of them beyond :data:`MAX_POINTS`, which keeps an
+    SVG or PDF of hours at 100 Hz small); the smoothed track's too when there is one."""
+    tracks = [("forward", solution, "C0", "C1")]
+    if smoothed is not None:
+        tracks.append(("smoothed", smoothed, "C2", "C2"))
+    stride = -(-truth.t.size // MAX_POINTS)
     fig = Figure(figsize=(10, 7))
     axes = fig.subplots(3, 1, sharex=True)
-    for k, (ax, name) in enumerate(zip(axes, ("east", "north", "up"), strict=True)):
-        ref = np.interp(t, truth.t, truth.position[:, k])
-        err = solution.position[inside, k] - ref
-        sig = solution.sigma_position[inside, k]
-        ax.fill_between(t, -3 * sig, 3 * sig, color="C1", alpha=0.25, label="±3σ")
-        ax.plot(t, err, "C0-", lw=0.8, label="error")
+    for label, track, line, band in tracks:
+        at = interpolate_solution(track, truth.t[::stride])
+        err = at.position - truth.position[::stride][at.inside]
+        for k, ax in enumerate(axes):
+            sig = at.sigma_position[:, k]
+            ax.fill_between(at.t, -3 * sig, 3 * sig, color=band, alpha=0.2, label=f"{label} ±3σ")
+            ax.plot(at.t, err[:, k], color=line, lw=0.8, label=f"{label} error")
+    for ax, name in zip(axes, ("east", "north", "up"), strict=True):
         ax.set_ylabel(f"{name} (m)")
         ax.grid(True, alpha=0.3)
-    axes[0].legend(loc="upper left")
+    axes[0].legend(loc="upper left", fontsize="small", ncol=len(tracks))
     axes[0].set_title(title)
     axes[-1].set_xlabel("time (s)")
     fig.tight_layout()

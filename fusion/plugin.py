@@ -15,7 +15,8 @@ names them in a later measurement's :class:`~fusion.kalman.CorrelatedNoise`: the
 accounts for the stored estimate's error being correlated with its own (:mod:`fusion.kalman`).
 
 Plugins are found through the ``fusion.plugins`` entry-point group (``name = "module:Class"``),
-so a third party adds one by packaging it, without touching the core.
+so a third party adds one by packaging it, without touching the core; a plugin defined in a
+script or a notebook is named to the registry at run time by :func:`register_plugin` instead.
 """
 
 from __future__ import annotations
@@ -300,14 +301,51 @@ class PluginError(ValueError):
     """A plugin cannot be found or its options are invalid."""
 
 
+_registered_at_run_time: dict[str, type[Plugin]] = {}
+"""Plugins named by :func:`register_plugin` in this process, by name."""
+
+
+def register_plugin(name: str, cls: type[Plugin]) -> None:
+    """Make ``cls`` usable as ``type: name`` in a configuration of this process, without
+    packaging it (a plugin written in a script or a notebook).
+
+    Registering a name again replaces the earlier class (a notebook cell run twice); a name
+    an installed package registers through the ``fusion.plugins`` entry points cannot be
+    taken. The registration lives in this process only: worker processes (a benchmark's
+    process pool) do not see it.
+
+    Raises
+    ------
+    PluginError
+        When ``cls`` is not a :class:`Plugin` subclass, ``name`` is empty or contains
+        whitespace, or an entry point already uses ``name``.
+    """
+    if not (isinstance(cls, type) and issubclass(cls, Plugin)):
+        raise PluginError(f"register_plugin({name!r}, ...): {cls!r} is not a fusion.plugin.Plugin")
+    if not isinstance(name, str) or not name or name != "".join(name.split()):
+        raise PluginError(f"register_plugin: the name {name!r} must be a word without spaces")
+    installed = [ep for ep in entry_points(group=ENTRY_POINT_GROUP) if ep.name == name]
+    if installed:
+        raise PluginError(
+            f"register_plugin: {name!r} is already the installed plugin {installed[0].value};"
+            " choose another name"
+        )
+    _registered_at_run_time[name] = cls
+
+
 def plugin_names() -> list[str]:
-    """Names registered in the ``fusion.plugins`` entry-point group (nothing is imported)."""
-    return sorted({ep.name for ep in entry_points(group=ENTRY_POINT_GROUP)})
+    """Names registered in the ``fusion.plugins`` entry-point group (nothing is imported) and
+    by :func:`register_plugin`."""
+    installed = {ep.name for ep in entry_points(group=ENTRY_POINT_GROUP)}
+    return sorted(installed | set(_registered_at_run_time))
 
 
 def load_plugin_class(kind: str) -> type[Plugin]:
-    """Import the class registered as ``kind`` (only that one: a broken third-party plugin
-    does not stop the others from loading)."""
+    """The class registered as ``kind``: imported from its entry point (only that one: a broken
+    third-party plugin does not stop the others from loading) or as given to
+    :func:`register_plugin`."""
+    if kind in _registered_at_run_time:
+        return _registered_at_run_time[kind]
     matches = [ep for ep in entry_points(group=ENTRY_POINT_GROUP) if ep.name == kind]
     if not matches:
         raise PluginError(f"no plugin {kind!r} is registered (known: {plugin_names()})")

@@ -1346,9 +1346,9 @@ def _inspect(path: str | Path, *, bridge_imu_gaps: bool) -> tuple[Recording | No
                 )
             tables[stem] = table
         problems.extend(rep.finish())
-
+    times = {stem: table.values[:, 0] for stem, table in tables.items()}
+    problems.extend(_truth_overlap(times, lambda stem: files[stem].name))
     if "imu" in tables:
-        times = {stem: table.values[:, 0] for stem, table in tables.items()}
         for warning in _stream_warnings(times, lambda stem: files[stem].name, "no rows"):
             _log.warning("%s: %s", root, warning)
     if problems or meta is None:
@@ -1401,6 +1401,8 @@ def _stream_warnings(
             warnings.append(Problem(label(stem), "", f"the stream has {empty}: no samples"))
             continue
         first, last = float(t.min()), float(t.max())
+        if stem == "truth" and (last < start or first > end):
+            continue  # a problem, not a warning (_truth_overlap)
         spans = f"({label(stem)} t={first:.6g}..{last:.6g} s, {imu_span})"
         if last < start - slack or first > end + slack:
             rule = f"lies entirely outside the IMU's time span {spans}: none of it can be used"
@@ -1415,6 +1417,27 @@ def _stream_warnings(
             rule = f"{' and '.join(ends)} the IMU {spans}"
         warnings.append(Problem(label(stem), "", rule))
     return warnings
+
+
+def _truth_overlap(times: dict[str, FloatArray], label: Callable[[str], str]) -> list[Problem]:
+    """A truth whose time span misses the IMU's entirely scores nothing (and scoring it would
+    fail): one problem naming both spans."""
+    if "truth" not in times or "imu" not in times:
+        return []
+    t_imu, t_truth = times["imu"], times["truth"]
+    if t_imu.size == 0 or t_truth.size == 0:
+        return []
+    if t_truth[-1] >= t_imu[0] and t_truth[0] <= t_imu[-1]:
+        return []
+    return [
+        Problem(
+            label("truth"),
+            "",
+            f"its time span {_num(t_truth[0])}..{_num(t_truth[-1])} s does not overlap"
+            f" {label('imu')}'s {_num(t_imu[0])}..{_num(t_imu[-1])} s: the recording's"
+            " clock lies outside its truth, so nothing can be scored",
+        )
+    ]
 
 
 def _check_rate(
@@ -1606,13 +1629,14 @@ _CHUNK_ROWS = 16384  # rows formatted at once: about 20 MB of Python objects for
 def csv_text_chunks(
     header: Sequence[str], columns: Sequence[npt.NDArray[Any]], kinds: str
 ) -> Iterable[bytes]:
-    """Yield a CSV file's bytes in chunks: floats as ``repr`` (exact), ints as ``%d``, text as is.
+    """Yield a CSV file's bytes in chunks: floats as ``repr`` (exact; kind ``f``) or to 7
+    significant digits (kind ``g``, float32's precision), ints as ``%d``, text as is.
 
     Public so that writers working in chunks (the simulator) produce exactly this format.
     """
     yield (",".join(header) + "\n").encode()
     n = len(columns[0]) if columns else 0
-    fmt = ",".join({"f": "%r", "i": "%d", "s": "%s"}[k] for k in kinds) + "\n"
+    fmt = ",".join({"f": "%r", "g": "%.7g", "i": "%d", "s": "%s"}[k] for k in kinds) + "\n"
     for start in range(0, n, _CHUNK_ROWS):
         stop = min(n, start + _CHUNK_ROWS)
         parts = [c[start:stop].tolist() for c in columns]
@@ -1822,6 +1846,9 @@ def _physical_problems(
                 stem, section.rate_hz, median, naming.stream(stem), {}, naming.meta
             )
             problems.extend([found] if found is not None else [])
+    if r.truth is not None:
+        times = {"imu": r.imu.t, "truth": r.truth.t}
+        problems.extend(_truth_overlap(times, naming.stream))
     known = sorted(set(r.imu_gaps) | set(gaps)) if bridge_imu_gaps else list(r.imu_gaps)
     return problems, known
 
@@ -1834,10 +1861,10 @@ def check_recording(recording: Recording, *, bridge_imu_gaps: bool = False) -> R
     finite, time strictly increasing (``uwb``: per anchor), at least 2 IMU samples, physically
     possible values, the meta section of each stream present, the anchor ids defined, the
     checked rates within 10 %, no IMU gap longer than 5 sample intervals unless it is in
-    ``recording.imu_gaps`` or ``bridge_imu_gaps`` is set. A problem names the part as
-    ``Recording.imu`` and a row as ``sample i`` (its index in the arrays). A recording built in
-    memory (``path`` None) also gets the reader's warnings (logged): streams without samples,
-    streams outside the IMU's time span.
+    ``recording.imu_gaps`` or ``bridge_imu_gaps`` is set, a truth that overlaps the IMU's span.
+    A problem names the part as ``Recording.imu`` and a row as ``sample i`` (its index in the
+    arrays). A recording built in memory (``path`` None) also gets the reader's warnings
+    (logged): streams without samples, streams outside the IMU's time span.
 
     Parameters
     ----------

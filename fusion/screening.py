@@ -47,10 +47,10 @@ from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 from typing import Any
 
-import numba
 import numpy as np
 from numpy.typing import NDArray
 
+from fusion import kernels
 from fusion.config import ConfigError, ScreeningOptions
 from fusion.recording import (
     ImuData,
@@ -344,7 +344,7 @@ def _first_rule(bad: list[NDArray[np.bool_]]) -> Verdicts:
 # --------------------------------------------------------------------------------------------
 
 
-@numba.njit(cache=True)
+@kernels.jit
 def _range_and_steps(
     t: NDArray[np.float64],
     a: NDArray[np.float64],
@@ -403,7 +403,7 @@ def _range_and_steps(
     return verdicts
 
 
-@numba.njit(cache=True)
+@kernels.jit
 def _fix_jumps(
     t: NDArray[np.float64],
     enu: NDArray[np.float64],

@@ -6,13 +6,16 @@ roll / pitch / yaw (rad, the convention of the format) and the 1-sigma position 
 Floats are written with ``repr``, so a file reads back bit-identical; the writer is
 deterministic.  A full position covariance, when the engine provides one, travels in memory only
 (:attr:`Solution.position_covariance`, used for NEES in :mod:`fusion.metrics`).
+:meth:`Solution.to_pandas` gives the file's table as a DataFrame (pandas is the optional extra
+``shearer-fusion[pandas]``).
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from types import ModuleType
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -26,7 +29,10 @@ from fusion.recording import (
     _write_csv,
 )
 
-__all__ = ["SOLUTION_COLUMNS", "Solution", "read_solution", "write_solution"]
+if TYPE_CHECKING:
+    import pandas as pd
+
+__all__ = ["SOLUTION_COLUMNS", "Solution", "read_solution", "require_pandas", "write_solution"]
 
 SOLUTION_COLUMNS: tuple[str, ...] = (
     "t",
@@ -44,6 +50,18 @@ SOLUTION_COLUMNS: tuple[str, ...] = (
     "su",
 )
 """Columns of ``solution.csv`` and ``smoothed.csv``, in order."""
+
+
+def require_pandas() -> ModuleType:
+    """The pandas module, or an ImportError saying how to install it (an optional extra)."""
+    try:
+        import pandas
+    except ImportError as exc:
+        raise ImportError(
+            "to_pandas() needs pandas, an optional dependency: "
+            "pip install 'shearer-fusion[pandas]' (or pip install pandas)"
+        ) from exc
+    return pandas
 
 
 def _array(name: str, value: Any, shape: tuple[int, ...]) -> FloatArray:
@@ -96,6 +114,27 @@ class Solution:
         """Number of epochs."""
         return int(self.t.shape[0])
 
+    def columns(self) -> list[FloatArray]:
+        """The columns of the file, in :data:`SOLUTION_COLUMNS` order (views, no copy)."""
+        return [
+            self.t,
+            *self.position.T,
+            *self.velocity.T,
+            *self.attitude.T,
+            *self.sigma_position.T,
+        ]
+
+    def to_pandas(self) -> pd.DataFrame:
+        """The table of ``solution.csv``: one row per epoch, the :data:`SOLUTION_COLUMNS`.
+
+        Raises
+        ------
+        ImportError
+            Without pandas (``pip install 'shearer-fusion[pandas]'``).
+        """
+        pandas = require_pandas()
+        return pandas.DataFrame(dict(zip(SOLUTION_COLUMNS, self.columns(), strict=True)))
+
 
 def write_solution(solution: Solution, path: str | Path) -> None:
     """Write a solution file (``solution.csv`` / ``smoothed.csv``).
@@ -114,7 +153,7 @@ def write_solution(solution: Solution, path: str | Path) -> None:
         be read back).
     """
     s = solution
-    columns = [s.t, *s.position.T, *s.velocity.T, *s.attitude.T, *s.sigma_position.T]
+    columns = s.columns()
     rep = _Reporter(Path(path).name)
     lines = np.arange(2, len(s) + 2, dtype=np.int64)
     bad = [np.flatnonzero(~np.isfinite(c)) for c in columns]  # column by column: no table copy

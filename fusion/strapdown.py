@@ -43,7 +43,6 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-import numba
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
@@ -56,7 +55,7 @@ NAV_SIZE = 10
 HIST_SIZE = 10
 
 
-@numba.njit(cache=True)
+@kernels.jit
 def _step(
     nav: NDArray[np.float64],
     hist: NDArray[np.float64],
@@ -120,7 +119,7 @@ def _step(
     return dv_sf_n
 
 
-@numba.njit(cache=True)
+@kernels.jit
 def _advance(
     nav: NDArray[np.float64],
     hist: NDArray[np.float64],
@@ -352,7 +351,7 @@ class MechanizationResult:
     attitude: NDArray[np.float64]
 
 
-@numba.njit(cache=True)
+@kernels.jit
 def _mechanize_all(
     nav: NDArray[np.float64],
     hist: NDArray[np.float64],

@@ -13,6 +13,7 @@ from collections.abc import Iterable, Sequence
 from types import UnionType
 from typing import Annotated, Any, Union, get_args, get_origin
 
+import annotated_types
 from pydantic import BaseModel, ValidationError
 
 
@@ -72,6 +73,28 @@ def short_repr(value: Any) -> str:
     return text if len(text) <= 60 else text[:57] + "..."
 
 
+def allowed_interval(root: type[BaseModel], path: Sequence[Any]) -> str | None:
+    """The range a numeric field at ``path`` inside ``root`` allows, as an interval such as
+    ``[0.001, 10]`` or ``(0, 1)``; None unless the field is bounded on both sides."""
+    if not path:
+        return None
+    model = model_at(root, path[:-1])
+    info = model.model_fields.get(str(path[-1])) if model is not None else None
+    if info is None:
+        return None
+    low = high = None
+    for rule in info.metadata:
+        if isinstance(rule, annotated_types.Gt):
+            low = f"({rule.gt:g}"
+        elif isinstance(rule, annotated_types.Ge):
+            low = f"[{rule.ge:g}"
+        elif isinstance(rule, annotated_types.Lt):
+            high = f"{rule.lt:g})"
+        elif isinstance(rule, annotated_types.Le):
+            high = f"{rule.le:g}]"
+    return f"{low}, {high}" if low is not None and high is not None else None
+
+
 def describe_error(root: type[BaseModel], err: Any) -> str:
     """A sentence for one pydantic error dict of a ``root`` model validation."""
     kind = err["type"]
@@ -97,14 +120,20 @@ def describe_error(root: type[BaseModel], err: Any) -> str:
         return f"must be {ctx.get('expected')} (found {short_repr(value)})"
     if kind in ("float_type", "float_parsing"):
         return f"must be a number (found {short_repr(value)})"
-    if kind == "finite_number":
-        return f"must be a finite number (found {short_repr(value)})"
-    if kind == "greater_than":
-        return f"must be > {ctx['gt']:g} (found {short_repr(value)})"
-    if kind == "greater_than_equal":
-        return f"must be >= {ctx['ge']:g} (found {short_repr(value)})"
-    if kind == "less_than_equal":
-        return f"must be <= {ctx['le']:g} (found {short_repr(value)})"
+    bounds = {
+        "greater_than": ">",
+        "greater_than_equal": ">=",
+        "less_than": "<",
+        "less_than_equal": "<=",
+    }
+    if kind == "finite_number" or kind in bounds:
+        interval = allowed_interval(root, loc)
+        if interval is not None:
+            return f"must be a number in {interval} (found {short_repr(value)})"
+        if kind == "finite_number":
+            return f"must be a finite number (found {short_repr(value)})"
+        limit = next(iter(ctx.values()))
+        return f"must be {bounds[kind]} {limit:g} (found {short_repr(value)})"
     if kind in ("tuple_type", "list_type"):
         return f"must be a list (found {short_repr(value)})"
     if kind == "too_long":

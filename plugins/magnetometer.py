@@ -254,10 +254,12 @@ class Magnetometer(Plugin):
         blocks = []
         if self.options.declination_sigma_deg > 0.0:
             sigma = math.radians(self.options.declination_sigma_deg)
-            blocks.append(StateBlock(self.declination_block, ("d",), (sigma,)))
+            blocks.append(StateBlock(self.declination_block, ("d",), (sigma,), unit="deg"))
         if self.options.hard_iron_sigma_uT > 0.0:
             sigma = self.options.hard_iron_sigma_uT
-            blocks.append(StateBlock(self.hard_iron_block, ("x", "y", "z"), (sigma,) * 3))
+            blocks.append(
+                StateBlock(self.hard_iron_block, ("x", "y", "z"), (sigma,) * 3, unit="uT")
+            )
         return tuple(blocks)
 
     def epochs(self) -> NDArray[np.float64]:

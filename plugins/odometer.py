@@ -267,10 +267,14 @@ class Odometer(Plugin):
     def state_blocks(self) -> tuple[StateBlock, ...]:
         """Mounting angles δα (3) and, with an odometer, its scale factor error δk_D."""
         sig = np.deg2rad(self.options.mounting_sigma_deg)
-        blocks = [StateBlock(f"{self.name}.mounting_angles", ("x", "y", "z"), (sig,) * 3)]
+        blocks = [
+            StateBlock(f"{self.name}.mounting_angles", ("x", "y", "z"), (sig,) * 3, unit="deg")
+        ]
         if self.use_speed:
             blocks.append(
-                StateBlock(f"{self.name}.scale_error", ("k",), (self.options.scale_sigma,))
+                StateBlock(
+                    f"{self.name}.scale_error", ("k",), (self.options.scale_sigma,), unit="ppm"
+                )
             )
         if self.use_speed and self.options.slip_detection:
             blocks.append(
@@ -281,6 +285,7 @@ class Odometer(Plugin):
                     may_jump=True,
                     rest=0.0,
                     leaves_rest=1,
+                    unit="pct",
                 )
             )
         return tuple(blocks)

@@ -297,6 +297,7 @@ class UwbRanges(Plugin):
                 (o.range_bias_sigma_m,) * n,
                 (density,) * n,
                 tau,
+                unit="m",
             ),
         )
 

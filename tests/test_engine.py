@@ -10,7 +10,7 @@ import pytest
 from analytic_truth import ShearerMotion, Synthetic, synthesize
 
 from fusion.attitude import dcm_from_euler, wrap_angle
-from fusion.cli import main
+from fusion.cli import EXIT_BAD_INPUT, main
 from fusion.config import ConfigError, load_config, parse_config
 from fusion.engine import Engine
 from fusion.error_model import ImuNoise
@@ -163,7 +163,7 @@ def test_cli_run_validate_and_check(tmp_path: Path, capsys: pytest.CaptureFixtur
 def test_cli_names_the_plugin_and_recording_when_a_sensor_is_missing(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    """A configuration whose plugin needs a sensor file the recording lacks: exit code 2 and
+    """A configuration whose plugin needs a sensor file the recording lacks: bad input (3) and
     one line naming the configuration key, the plugin, the recording and the file (no
     traceback, nothing run without the plugin)."""
     rec_dir = tmp_path / "rec"
@@ -172,7 +172,7 @@ def test_cli_names_the_plugin_and_recording_when_a_sensor_is_missing(
     config.write_text("name: uwb\nplugins:\n  - type: uwb\n")
     out = tmp_path / "out"
     code = main(["run", "--config", str(config), "--recording", str(rec_dir), "--out", str(out)])
-    assert code == 2
+    assert code == EXIT_BAD_INPUT
     err = capsys.readouterr().err
     assert "key plugins[0] (uwb)" in err and str(rec_dir) in err and "uwb.csv" in err
     assert not (out / "solution.csv").exists()
@@ -243,6 +243,6 @@ def test_max_rate_thins_epochs_and_keeps_shared_time_stamps_together() -> None:
 def test_validate_config_checks_plugin_options(tmp_path: Path, capsys) -> None:  # type: ignore[no-untyped-def]
     bad = tmp_path / "bad.yaml"
     bad.write_text("name: bad\nplugins:\n  - {type: odometer, sigma_sped_mps: 0.01}\n")
-    assert main(["validate-config", str(bad)]) == 2
+    assert main(["validate-config", str(bad)]) == EXIT_BAD_INPUT
     err = capsys.readouterr().err
     assert "plugins[0].sigma_sped_mps" in err and "sigma_speed_mps" in err

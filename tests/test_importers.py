@@ -13,7 +13,7 @@ import pytest
 import scipy.io
 
 from fusion.attitude import dcm_from_euler, quat_from_dcm, wrap_angle
-from fusion.cli import main
+from fusion.cli import EXIT_BAD_INPUT, main
 from fusion.earth import normal_gravity
 from fusion.importers import (
     DatasetError,
@@ -335,7 +335,8 @@ def test_cli_import_writes_a_valid_recording(tmp_path: Path, capsys) -> None:
     assert main(["import", "pyshoe", str(src), str(tmp_path / "rec")]) == 0
     assert "valid shearer-recording/1" in capsys.readouterr().out
     assert main(["validate", str(tmp_path / "rec")]) == 0
-    assert main(["import", "pyshoe", str(tmp_path / "none.mat"), str(tmp_path / "x")]) == 2
+    missing = tmp_path / "none.mat"
+    assert main(["import", "pyshoe", str(missing), str(tmp_path / "x")]) == EXIT_BAD_INPUT
     assert "none.mat: no such file" in capsys.readouterr().err
 
 

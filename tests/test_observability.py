@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import re
 from pathlib import Path
 
 import numpy as np
@@ -68,6 +69,7 @@ def test_position_fixes_observe_the_position_and_the_report_reaches_every_output
     text = summary(result, rec)
     assert "observed   share of each state's prior variance the data removed:" in text
     assert "           gyro_bias: x " in text
+    assert re.search(r"estimate   gyro_bias: \[.*\] ± \[.*\] deg/h", text)  # a user's unit
     files = write_outputs(result, rec, tmp_path)
     metrics = json.loads(files["metrics"].read_text())
     assert metrics["observability"]["removed"]["position"]["e"] > 0.99

@@ -226,14 +226,38 @@ def test_yaw_wraps_and_unwraps() -> None:
     )
     inside, _, _, att, _ = interpolate_truth(truth, np.array([0.5]))
     assert inside.all() and np.rad2deg(att[0, 2]) % 360 == pytest.approx(180.0)
-    sol = solution_with_error(np.array([0.5, 1.0]), np.zeros(3))
-    sol.attitude[:, 2] = np.deg2rad([-179.0, 179.0])  # errors +1° and -3°
+    sol = solution_with_error(np.array([0.0, 2.0]), np.zeros(3))
+    sol.attitude[:, 2] = np.deg2rad([179.0, -177.0])  # crosses ±180° too: 181° at t = 1 s
     sol.attitude[:, 0] = np.deg2rad([0.5, -0.5])
-    m = compute_metrics(sol, truth)["attitude_deg"]
+    m = compute_metrics(sol, truth)["attitude_deg"]  # errors +1°, -1°, -3° at t = 0, 1, 2 s
     assert m["yaw"]["max_abs"] == pytest.approx(3.0)
     assert m["yaw"]["mean"] == pytest.approx(-1.0)
-    assert m["yaw"]["rms"] == pytest.approx(math.sqrt(5.0))
-    assert m["roll"]["rms"] == pytest.approx(0.5)
+    assert m["yaw"]["rms"] == pytest.approx(math.sqrt(11.0 / 3.0))
+    assert m["roll"]["rms"] == pytest.approx(math.sqrt(1.0 / 6.0))
+
+
+def test_scored_at_truth_epochs_so_a_sparse_truth_adds_no_chord_error() -> None:
+    """A 1-Hz truth on a 5-m circle and an exact 100-Hz solution: no error at the truth epochs
+    (truth interpolated onto the solution would add its chord's sagitta, up to 16 cm here), and
+    RMS(err/σ) with the solution's σ taken at the same epochs."""
+    omega = 0.5  # rad/s
+
+    def circle(t: np.ndarray) -> np.ndarray:
+        return np.column_stack([5.0 * np.cos(omega * t), 5.0 * np.sin(omega * t), 0 * t])
+
+    tt = np.arange(0.0, 11.0)
+    zeros = np.zeros((tt.size, 3))
+    truth = TruthData(tt, circle(tt), zeros, zeros, np.zeros(tt.size, dtype=np.int64))
+    ts = np.linspace(0.5, 10.0, 951)
+    sol = solution_with_error(ts, np.zeros(3), 0.1)
+    sol.position[:] = circle(ts)
+    sol.position[:, 2] = 0.05 * ts  # the up error grows: 0.05 m at the 1-s truth epoch ...
+    sol.sigma_position[:, 2] = 0.5 * ts  # ... with its σ growing alike: err/σ = 0.1 throughout
+    m = compute_metrics(sol, truth)
+    assert m["epochs"] == 10 and m["truth_epochs_excluded"] == 1 and m["epochs_excluded"] == 0
+    assert m["t_start"] == 1.0 and m["t_end"] == 10.0
+    assert m["horizontal_max"] == pytest.approx(0.0, abs=1e-5)
+    assert m["nees"]["normalized_rms"]["u"] == pytest.approx(0.1)
 
 
 def test_normalized_errors_from_sigma() -> None:

@@ -26,6 +26,7 @@ import yaml
 from numpy.typing import NDArray
 
 from fusion.attitude import dcm_from_euler
+from fusion.recording import Problem, RecordingError
 
 
 def _read_truth(root: Path) -> NDArray[np.float64]:
@@ -34,8 +35,12 @@ def _read_truth(root: Path) -> NDArray[np.float64]:
         text = plain.read_bytes()
     elif packed.exists():
         text = gzip.decompress(packed.read_bytes())
+    elif not root.is_dir():
+        found = "is not a directory" if root.exists() else "does not exist"
+        raise RecordingError([Problem("", "", f"recording directory {str(root)!r} {found}")], root)
     else:
-        raise FileNotFoundError(f"{root}: no truth.csv (the truth figure needs the truth)")
+        problem = Problem("truth.csv", "", "required file is missing (the figure is of the truth)")
+        raise RecordingError([problem], root)
     data = np.loadtxt(io.BytesIO(text), delimiter=",", skiprows=1, usecols=range(11), ndmin=2)
     return np.asarray(data, dtype=float)
 

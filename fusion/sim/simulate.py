@@ -33,7 +33,6 @@ from __future__ import annotations
 
 import copy
 import math
-import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import IO, Any
@@ -174,7 +173,7 @@ def simulate(
     *,
     seed: int = 0,
     overrides: Sequence[str] = (),
-    verbose: bool = False,
+    progress: Callable[[float], None] | None = None,
 ) -> Path:
     """Simulate a scenario into a recording directory.
 
@@ -190,8 +189,8 @@ def simulate(
         Seed of every random draw; the same seed gives byte-identical files.
     overrides
         ``key.sub=value`` overrides applied before validation.
-    verbose
-        Print one progress line per chunk.
+    progress
+        Called after each chunk with the fraction of the scenario's duration written.
 
     Returns
     -------
@@ -228,7 +227,6 @@ def simulate(
 
     first: TruthChunk | None = None
     t_prev = -math.inf
-    started = time.perf_counter()
     try:
         for k0, k1 in exact.chunks(sc.chunk_s):
             tc = exact.chunk(k0, k1)
@@ -249,12 +247,8 @@ def simulate(
             for name, (_, columns) in aiding.items():
                 files[name].append(columns(tc, t_prev))
             t_prev = float(tc.t[-1])
-            if verbose:
-                print(
-                    f"{sc.name}: {t_prev:9.1f} / {traj.duration:.1f} s "
-                    f"({time.perf_counter() - started:6.1f} s)",
-                    flush=True,
-                )
+            if progress is not None:
+                progress(min(t_prev / traj.duration, 1.0) if traj.duration > 0 else 1.0)
     finally:
         for f in files.values():
             f.close()
