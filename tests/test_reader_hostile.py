@@ -314,3 +314,12 @@ def test_in_memory_stream_outside_span_is_a_warning(caplog: pytest.LogCaptureFix
         "in-memory recording: Recording.odometer: lies entirely outside the IMU's time span "
         "(Recording.odometer t=100..102 s, Recording.imu t=0..2 s): none of it can be used"
     ]
+
+
+def test_in_memory_truth_outside_the_imu_is_refused_as_from_a_file() -> None:
+    good = make_recording()
+    assert good.truth is not None
+    late = replace(good, truth=replace(good.truth, t=good.truth.t + 100.0))
+    assert "Recording.truth: its time span 100.0..102.0 s does not overlap Recording.imu's" in (
+        _engine_problems(late)
+    )
