@@ -15,13 +15,16 @@ An IMU's tuning shared by several configurations lives in its own YAML file, nam
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 from typing import Annotated, Any, Literal
 
 import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
+from fusion.input_files import regular_file_problem
 from fusion.validation import error_lines
+from fusion.yaml_limits import YamlError, load_yaml
 
 
 class ConfigError(ValueError):
@@ -745,16 +748,20 @@ def load_config_data(path: str | Path) -> Any:
 
 
 def _read_yaml(path: Path) -> Any:
+    """A configuration file's YAML, read by the limited loader (:mod:`fusion.yaml_limits`:
+    UTF-8, no duplicate key, bounded nesting and aliases); only a regular file is opened."""
+    kind = regular_file_problem(path) if os.path.lexists(path) else None
+    if kind is not None:
+        raise ConfigError(f"{path}: cannot read the configuration ({kind})")
     try:
-        text = path.read_text(encoding="utf-8")
+        raw = path.read_bytes()
     except OSError as exc:
         raise ConfigError(f"{path}: cannot read the configuration ({exc.strerror})") from None
     try:
-        return yaml.safe_load(text)
-    except yaml.YAMLError as exc:
-        mark = getattr(exc, "problem_mark", None)
-        where = f", line {mark.line + 1}" if mark is not None else ""
-        raise ConfigError(f"{path}{where}: not valid YAML ({exc})") from None
+        return load_yaml(raw).data
+    except YamlError as exc:
+        where = f", line {exc.line}" if exc.line is not None else ""
+        raise ConfigError(f"{path}{where}: {exc.rule}") from None
 
 
 def _imu_from_file(block: dict[str, Any], config: Path) -> dict[str, Any]:

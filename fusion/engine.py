@@ -60,7 +60,7 @@ from fusion.lock import LOST_LOCK, REACQUIRE, LockMonitor
 from fusion.memory import release_freed_memory
 from fusion.observability import Observability, ObservabilityTracker
 from fusion.plugin import MeasurementContext, Plugin, create_plugin
-from fusion.recording import ImuSpec, Recording
+from fusion.recording import ImuSpec, Recording, check_recording
 from fusion.rows import RowBuffer
 from fusion.screening import ScreeningReport, screen_recording
 from fusion.smoother import WindowedSmoother
@@ -238,6 +238,7 @@ class Engine:
 
     def __init__(self, config: FusionConfig, recording: Recording) -> None:
         self.config = config
+        recording = check_recording(recording, bridge_imu_gaps=config.bridge_imu_gaps)
         screened, self.screening = screen_recording(recording, config.screening)
         rate = config.streams.odometer_max_rate_hz
         if screened.odometer is not None and rate is not None:

@@ -7,20 +7,28 @@ A recording directory holds ``meta.yaml`` and one CSV file per sensor stream, as
   stream plus the validated :class:`RecordingMeta`) and raises :class:`RecordingError` listing
   *every* broken rule it found (file, line or key, and the rule), never a silent guess;
 * :func:`validate_recording` runs the same checks and returns the list of :class:`Problem`;
+* :func:`check_recording` applies the rules that concern arrays to a :class:`Recording` built in
+  memory (the engine calls it on every recording it receives);
 * :func:`write_recording` writes a :class:`Recording` back, deterministically (byte-identical
   files for identical input, ``repr``-exact floats, optional ``.csv.gz`` with a zero mtime).
 
 Rules checked (each broken one becomes a :class:`Problem`)
 ---------------------------------------------------------
-``meta.yaml``: present, valid YAML, a mapping, no duplicate key, every required key present
+Every file: a regular file (or a symbolic link to one); a directory, a named pipe, a dangling
+link or a link loop in place of a file is a problem of its own, and nothing else is opened.
+
+``meta.yaml``: present, UTF-8, valid YAML within the limits of :mod:`fusion.yaml_limits` (no
+duplicate key, bounded nesting and alias expansion), a mapping, every required key present
 (reported by its dotted path, e.g. ``initial.sigma.position_m``), no unknown key outside the
 free-form ``extra:`` mapping (with the closest valid key suggested), right types, lengths and
 ranges (rates > 0, sigmas >= 0, finite numbers), ``format: shearer-recording/1``; the section of
 every present CSV file (``uwb`` with a non-empty ``uwb.anchors`` when ``uwb.csv`` is present).
 
-CSV files: ``imu.csv`` present; never both ``x.csv`` and ``x.csv.gz``; a header line whose first
-columns are exactly the required ones in order (extra columns after them are ignored); no
-empty line, missing field, empty cell, non-numeric cell, NaN or infinity; time strictly
+CSV files: ``imu.csv`` present; never both ``x.csv`` and ``x.csv.gz``; text (first bytes that
+are not, e.g. a gzip file named ``.csv``, are one short problem); a header line whose first
+columns are exactly the required ones in order (extra columns after them are ignored); every
+row with as many fields as the header (a decimal comma ``9,81`` adds one); no empty line, empty
+cell, non-numeric cell, NaN or infinity; time strictly
 increasing (``uwb.csv``: per anchor); ``imu.csv`` with at least two samples; the sample rate
 ``rate_hz`` of ``imu``, ``odometer`` and ``magnetometer`` within 10 % of
 ``1 / median(sample interval)``; no gap
@@ -34,6 +42,11 @@ compared with the file: which anchors answer depends on where the tag is (a syst
 the anchors in range in turn shares its rate among them), and the ranges of one round may share
 a time stamp. ``uwb.csv``'s times must increase per anchor; the reader returns its rows in time
 order (stable, so rows sharing a time stamp keep their file order).
+
+Warnings (logged on the ``fusion.recording`` logger, not problems: the format allows them): an
+optional stream with a header and no rows (support.csv excepted: no row there means no push),
+and a stream that begins before, ends after or lies entirely outside the IMU's time span by
+more than one IMU sample interval, named with both spans.
 
 Every rule reports at most :data:`MAX_REPORTS_PER_RULE` occurrences per file, followed by one
 problem saying how many more lines break it.  Line numbers are 1-based file lines: the header is
@@ -55,11 +68,12 @@ import io
 import itertools
 import logging
 import math
+import os
 import re
 import zlib
 from collections import Counter
 from collections.abc import Callable, Iterable, Iterator, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Annotated, Any, BinaryIO, Literal, NamedTuple
 
@@ -78,8 +92,10 @@ from pydantic import (
     field_validator,
 )
 
+from fusion.input_files import regular_file_problem
 from fusion.memory import release_freed_memory
 from fusion.validation import describe_error, dotted, short_repr, suggest
+from fusion.yaml_limits import KeyPath, YamlError, load_yaml
 
 __all__ = [
     "FORMAT",
@@ -111,6 +127,7 @@ __all__ = [
     "TruthData",
     "UwbData",
     "UwbMeta",
+    "check_recording",
     "load_meta",
     "read_recording",
     "validate_recording",
@@ -172,10 +189,12 @@ class Problem(NamedTuple):
     ----------
     file : str
         File name relative to the recording directory (``"imu.csv"``, ``"meta.yaml"``), or
-        ``""`` when the problem concerns the directory itself.
+        ``""`` when the problem concerns the directory itself; for a recording built in memory
+        the part concerned (``"Recording.imu"``, ``"Recording.meta"``, ``"ImuData"``).
     where : str
         Location inside the file: ``"line 17"``, ``"line 17, column fz"``,
-        ``"key uwb.anchors.A3 (line 12)"``, ``"lines 100-101 (t=0.99..1.8 s)"`` or ``""``.
+        ``"key uwb.anchors.A3 (line 12)"``, ``"lines 100-101 (t=0.99..1.8 s)"`` or ``""``; in
+        memory a row is ``"sample 17"``, its index in the arrays.
     rule : str
         Sentence naming the rule that is broken and what was found.
     """
@@ -224,9 +243,10 @@ class RecordingError(ValueError):
 class _Reporter:
     """Collect problems of one file, capping the occurrences reported per rule."""
 
-    def __init__(self, file: str, cap: int = MAX_REPORTS_PER_RULE) -> None:
+    def __init__(self, file: str, cap: int = MAX_REPORTS_PER_RULE, unit: str = "line") -> None:
         self.file = file
         self.cap = cap
+        self.unit = unit  # what a row number counts: a file's "line", an array's "sample"
         self.problems: list[Problem] = []
         self._counts: Counter[str] = Counter()
         self._summaries: dict[str, str] = {}
@@ -449,8 +469,22 @@ def _set(obj: object, name: str, value: Any) -> None:
     object.__setattr__(obj, name, value)
 
 
+class _Stream:
+    """Base of the stream classes: their arrays are converted to float64 (int64 for indices)
+    and their shapes checked on construction; a bad one raises :class:`RecordingError`."""
+
+    def __post_init__(self) -> None:
+        try:
+            self._convert()
+        except ValueError as exc:
+            raise RecordingError([Problem(type(self).__name__, "", str(exc))]) from None
+
+    def _convert(self) -> None:
+        raise NotImplementedError
+
+
 @dataclass(frozen=True, eq=False)
-class ImuData:
+class ImuData(_Stream):
     """IMU samples: each the mean over ``(t_prev, t]``.
 
     Attributes
@@ -467,7 +501,7 @@ class ImuData:
     gyro: FloatArray
     accel: FloatArray
 
-    def __post_init__(self) -> None:
+    def _convert(self) -> None:
         t = _as_float("t", self.t, 1)
         _set(self, "t", t)
         _set(self, "gyro", _as_float("gyro", self.gyro, 2, len(t)))
@@ -475,33 +509,33 @@ class ImuData:
 
 
 @dataclass(frozen=True, eq=False)
-class OdometerData:
+class OdometerData(_Stream):
     """Odometer samples: signed speed along the m-frame y axis (m/s)."""
 
     t: FloatArray
     speed: FloatArray
 
-    def __post_init__(self) -> None:
+    def _convert(self) -> None:
         t = _as_float("t", self.t, 1)
         _set(self, "t", t)
         _set(self, "speed", _as_float("speed", self.speed, 1, len(t)))
 
 
 @dataclass(frozen=True, eq=False)
-class MagnetometerData:
+class MagnetometerData(_Stream):
     """Magnetometer samples: flux density in b, shape (N, 3), in µT."""
 
     t: FloatArray
     field: FloatArray
 
-    def __post_init__(self) -> None:
+    def _convert(self) -> None:
         t = _as_float("t", self.t, 1)
         _set(self, "t", t)
         _set(self, "field", _as_float("field", self.field, 2, len(t)))
 
 
 @dataclass(frozen=True, eq=False)
-class UwbData:
+class UwbData(_Stream):
     """UWB ranges, one per row.
 
     Attributes
@@ -522,7 +556,7 @@ class UwbData:
     range: FloatArray
     anchor_ids: tuple[str, ...]
 
-    def __post_init__(self) -> None:
+    def _convert(self) -> None:
         t = _as_float("t", self.t, 1)
         _set(self, "t", t)
         idx = _as_int("anchor_index", self.anchor_index, len(t))
@@ -534,27 +568,27 @@ class UwbData:
 
 
 @dataclass(frozen=True, eq=False)
-class SupportData:
+class SupportData(_Stream):
     """AFC push events: at ``t`` the AFC advanced by ``advance`` metres."""
 
     t: FloatArray
     advance: FloatArray
 
-    def __post_init__(self) -> None:
+    def _convert(self) -> None:
         t = _as_float("t", self.t, 1)
         _set(self, "t", t)
         _set(self, "advance", _as_float("advance", self.advance, 1, len(t)))
 
 
 @dataclass(frozen=True, eq=False)
-class PositionData:
+class PositionData(_Stream):
     """External position fixes (ENU m) of the point ``position.lever_arm_b_m``, with 1-sigma."""
 
     t: FloatArray
     enu: FloatArray
     sigma: FloatArray
 
-    def __post_init__(self) -> None:
+    def _convert(self) -> None:
         t = _as_float("t", self.t, 1)
         _set(self, "t", t)
         _set(self, "enu", _as_float("enu", self.enu, 2, len(t)))
@@ -562,7 +596,7 @@ class PositionData:
 
 
 @dataclass(frozen=True, eq=False)
-class TruthData:
+class TruthData(_Stream):
     """Reference trajectory (scoring only).
 
     Attributes
@@ -584,7 +618,7 @@ class TruthData:
     attitude: FloatArray
     cycle: IntArray
 
-    def __post_init__(self) -> None:
+    def _convert(self) -> None:
         t = _as_float("t", self.t, 1)
         _set(self, "t", t)
         for name in ("position", "velocity", "attitude"):
@@ -632,52 +666,9 @@ class Recording:
 # --------------------------------------------------------------------------------------------
 
 
-class _YamlLoader(yaml.SafeLoader):
-    """Safe loader that also reads ``1e5`` / ``2.5e-3`` as floats (YAML 1.2 style)."""
-
-
-_YamlLoader.yaml_implicit_resolvers = {
-    key: list(value) for key, value in yaml.SafeLoader.yaml_implicit_resolvers.items()
-}
-_YamlLoader.add_implicit_resolver(
-    "tag:yaml.org,2002:float",
-    re.compile(r"^[-+]?(?:[0-9][0-9_]*(?:\.[0-9_]*)?|\.[0-9_]+)[eE][-+]?[0-9]+$"),
-    list("-+0123456789."),
-)
-
-_Path = tuple[str | int, ...]
-
-
-def _walk_yaml(
-    node: yaml.Node, path: _Path, lines: dict[_Path, int], problems: list[Problem]
-) -> None:
-    """Record the line of every key / item and report duplicate keys."""
-    if isinstance(node, yaml.MappingNode):
-        seen: dict[Any, int] = {}
-        for key_node, value_node in node.value:
-            key: str | int = key_node.value if isinstance(key_node, yaml.ScalarNode) else "?"
-            line = key_node.start_mark.line + 1
-            child = (*path, key)
-            if key in seen:
-                problems.append(
-                    Problem(
-                        "meta.yaml",
-                        f"key {dotted(child)} (line {line})",
-                        f"duplicate key {key!r} (first given on line {seen[key]})",
-                    )
-                )
-                continue
-            seen[key] = line
-            lines[child] = line
-            _walk_yaml(value_node, child, lines, problems)
-    elif isinstance(node, yaml.SequenceNode):
-        for i, item in enumerate(node.value):
-            child = (*path, i)
-            lines[child] = item.start_mark.line + 1
-            _walk_yaml(item, child, lines, problems)
-
-
-def _meta_problems_from_validation(exc: ValidationError, lines: dict[_Path, int]) -> list[Problem]:
+def _meta_problems_from_validation(
+    exc: ValidationError, lines: dict[KeyPath, int], label: str = "meta.yaml"
+) -> list[Problem]:
     out: list[Problem] = []
     for err in exc.errors():
         loc = tuple(p for p in err["loc"] if p != "[key]")
@@ -685,36 +676,8 @@ def _meta_problems_from_validation(exc: ValidationError, lines: dict[_Path, int]
         line = lines.get(loc)
         if line is not None:
             where += f" (line {line})"
-        out.append(Problem("meta.yaml", where, describe_error(RecordingMeta, err)))
+        out.append(Problem(label, where, describe_error(RecordingMeta, err)))
     return out
-
-
-def _parse_meta_text(text: str) -> tuple[Any, dict[_Path, int], list[Problem]]:
-    """Parse YAML text; returns (data, key line numbers, problems)."""
-    lines: dict[_Path, int] = {}
-    problems: list[Problem] = []
-    loader = _YamlLoader(text)
-    try:
-        node = loader.get_single_node()
-        if node is None:
-            return None, lines, [Problem("meta.yaml", "", "file is empty; expected a mapping")]
-        _walk_yaml(node, (), lines, problems)
-        data = loader.construct_document(node)
-    except yaml.YAMLError as exc:
-        mark = getattr(exc, "problem_mark", None)
-        where = f"line {mark.line + 1}" if mark is not None else ""
-        reason = getattr(exc, "problem", None) or str(exc)
-        return None, lines, [Problem("meta.yaml", where, f"invalid YAML: {reason}")]
-    finally:
-        loader.dispose()
-    if not isinstance(data, dict):
-        problems.append(
-            Problem(
-                "meta.yaml", "", f"must be a mapping of keys to values (found {short_repr(data)})"
-            )
-        )
-        return None, lines, problems
-    return data, lines, problems
 
 
 def load_meta(path: str | Path) -> RecordingMeta:
@@ -744,22 +707,33 @@ def load_meta(path: str | Path) -> RecordingMeta:
 
 def _load_meta(
     file: Path,
-) -> tuple[RecordingMeta | None, Any, dict[_Path, int], list[Problem]]:
+) -> tuple[RecordingMeta | None, Any, dict[KeyPath, int], list[Problem]]:
     """Return (model or None, raw data or None, key lines, problems)."""
-    if not file.is_file():
+    if not os.path.lexists(file):
         return None, None, {}, [Problem("meta.yaml", "", "required file is missing")]
+    kind = regular_file_problem(file)
+    if kind is not None:
+        return None, None, {}, [Problem("meta.yaml", "", kind)]
     try:
-        text = file.read_text(encoding="utf-8")
-    except (OSError, UnicodeDecodeError) as exc:
-        return None, None, {}, [Problem("meta.yaml", "", f"cannot read file: {exc}")]
-    raw, lines, problems = _parse_meta_text(text)
+        document = load_yaml(file.read_bytes())
+    except OSError as exc:
+        return None, None, {}, [Problem("meta.yaml", "", f"cannot read file: {exc.strerror}")]
+    except YamlError as exc:
+        where = f"line {exc.line}" if exc.line is not None else ""
+        if exc.key is not None:
+            where = f"key {dotted(exc.key)} ({where})"
+        return None, None, {}, [Problem("meta.yaml", where, exc.rule)]
+    raw, lines = document.data, document.key_lines
     if raw is None:
-        return None, None, lines, problems
+        return None, None, lines, [Problem("meta.yaml", "", "file is empty; expected a mapping")]
+    if not isinstance(raw, dict):
+        rule = f"must be a mapping of keys to values (found {short_repr(raw)})"
+        return None, None, lines, [Problem("meta.yaml", "", rule)]
     try:
         meta = RecordingMeta.model_validate(raw)
     except ValidationError as exc:
-        return None, raw, lines, problems + _meta_problems_from_validation(exc, lines)
-    return meta, raw, lines, problems
+        return None, raw, lines, _meta_problems_from_validation(exc, lines)
+    return meta, raw, lines, []
 
 
 # --------------------------------------------------------------------------------------------
@@ -827,7 +801,9 @@ def _check_header(header: str, columns: Sequence[str], rep: _Reporter) -> bool:
     if found and _NUMBER.fullmatch(found[0]):
         rule = f"the first line must be the header '{expected}'; found a data row"
     else:
-        rule = f"header must start with exactly the columns '{expected}' (found '{header}')"
+        rule = (
+            f"header must start with exactly the columns '{expected}' (found {short_repr(header)})"
+        )
         if missing:
             rule += f"; missing column{'s' if len(missing) > 1 else ''} " + ", ".join(
                 repr(c) for c in missing
@@ -836,7 +812,7 @@ def _check_header(header: str, columns: Sequence[str], rep: _Reporter) -> bool:
             rule += "; columns out of order"
         j = next(i for i, c in enumerate(columns) if i >= len(found) or found[i] != c)
         if j < len(found):
-            rule += f" (column {j + 1} is {found[j]!r}, expected {columns[j]!r})"
+            rule += f" (column {j + 1} is {short_repr(found[j])}, expected {columns[j]!r})"
     rep.add("header", "line 1", rule)
     return False
 
@@ -858,7 +834,7 @@ def _read_table(
     size = None if path.name.endswith(".gz") else path.stat().st_size
     try:
         with _open_csv(path) as stream:
-            table = _parse_lines(_line_blocks(stream), columns, rep, text_col, size)
+            table = _parse_lines(_line_blocks(stream), label, columns, rep, text_col, size)
     except (OSError, EOFError, zlib.error, gzip.BadGzipFile) as exc:
         rep.add("read", "", f"cannot read {label}: {exc}")
         return None
@@ -927,6 +903,7 @@ class _TableBuilder:
 
 def _parse_lines(
     blocks: Iterator[bytes],
+    label: str,
     columns: Sequence[str],
     rep: _Reporter,
     text_col: int | None,
@@ -936,8 +913,12 @@ def _parse_lines(
     None when the file is empty or its header is wrong."""
     k = len(columns)
     first = next(blocks, b"")
+    binary = _binary_problem(first, label)
+    if binary is not None:
+        rep.add("binary", "", binary)
+        return None
     nl = first.find(b"\n")
-    header = (first if nl < 0 else first[:nl]).decode("utf-8", errors="replace").rstrip("\r")
+    header = (first if nl < 0 else first[:nl]).decode("utf-8").rstrip("\r")
     body = b"" if nl < 0 else first[nl + 1 :]
     if not header.strip() and not body.strip():
         following = next(blocks, None)
@@ -947,13 +928,14 @@ def _parse_lines(
         blocks = itertools.chain([following], blocks)
     if not _check_header(header, columns, rep):
         return None
+    n_fields = header.count(",") + 1
     builder = _TableBuilder(k, file_bytes)
     first_line = 2
     for block in itertools.chain([body] if nl >= 0 else [], blocks):
         n_lines = block.count(b"\n") + 1
-        parsed = _parse_block(block, n_lines, k, text_col)
+        parsed = _parse_block(block, n_lines, k, n_fields, text_col)
         if parsed is None:
-            parsed = _diagnose_block(block, first_line, columns, rep, text_col)
+            parsed = _diagnose_block(block, first_line, columns, header, rep, text_col)
             row_lines = parsed[2]
         else:
             row_lines = np.arange(first_line, first_line + n_lines, dtype=np.int64)
@@ -963,9 +945,12 @@ def _parse_lines(
 
 
 def _parse_block(
-    block: bytes, n_lines: int, k: int, text_col: int | None
+    block: bytes, n_lines: int, k: int, n_fields: int, text_col: int | None
 ) -> tuple[FloatArray, npt.NDArray[np.str_], IntArray] | None:
-    """Vectorized parse of whole lines; None when any line is malformed."""
+    """Vectorized parse of whole lines; None when any line is malformed (a line without the
+    header's ``n_fields`` fields included: loadtxt would read a decimal comma's first half)."""
+    if not _fields_match(block, n_fields):
+        return None
     num_cols = [j for j in range(k) if j != text_col]
     options: dict[str, Any] = {"delimiter": ",", "comments": None, "encoding": "utf-8"}
     try:
@@ -981,6 +966,35 @@ def _parse_block(
     except ValueError:  # includes UnicodeDecodeError
         return None
     return num, text, np.empty(0, dtype=np.int64)
+
+
+def _fields_match(block: bytes, n_fields: int) -> bool:
+    """Whether every line of ``block`` has ``n_fields`` comma-separated fields."""
+    chars = np.frombuffer(block, dtype=np.uint8)
+    commas = np.flatnonzero(chars == ord(","))
+    line_ends = np.append(np.flatnonzero(chars == ord("\n")), chars.size)
+    per_line = np.diff(np.searchsorted(commas, line_ends), prepend=0)
+    return bool(np.all(per_line == n_fields - 1))
+
+
+_GZIP_MAGIC = b"\x1f\x8b"
+
+
+def _binary_problem(first_block: bytes, label: str) -> str | None:
+    """A short rule when a file's first bytes are not text (a NUL byte, or a first line that is
+    not UTF-8), instead of echoing kilobytes of them; None for text."""
+    head = first_block[:4096]
+    if head.startswith(_GZIP_MAGIC):
+        return f"the first bytes are not text: gzip-compressed data (name it {label}.gz)"
+    if b"\x00" in head:
+        return "the first bytes are not text (a NUL byte): expected a CSV header line"
+    nl = head.find(b"\n")
+    try:
+        (head if nl < 0 else head[:nl]).decode("utf-8")
+    except UnicodeDecodeError as exc:
+        if nl >= 0 or exc.start < len(head) - 4:  # not a character cut by the 4096 bytes
+            return f"the header line is not UTF-8 text (byte 0x{head[exc.start]:02x})"
+    return None
 
 
 def _drop_nonfinite(
@@ -1011,14 +1025,19 @@ def _drop_nonfinite(
 
 
 def _diagnose_block(
-    block: bytes, first_line: int, columns: Sequence[str], rep: _Reporter, text_col: int | None
+    block: bytes,
+    first_line: int,
+    columns: Sequence[str],
+    header: str,
+    rep: _Reporter,
+    text_col: int | None,
 ) -> tuple[FloatArray, npt.NDArray[np.str_], IntArray]:
     """Line-by-line pass that reports every malformed line and keeps the good rows."""
     k = len(columns)
+    n_fields = header.count(",") + 1
     rows: list[list[float]] = []
     line_numbers: list[int] = []
     texts: list[str] = []
-    expected = ",".join(columns)
     for offset, raw_line in enumerate(block.decode("utf-8", errors="replace").split("\n")):
         number = first_line + offset
         line = raw_line[:-1] if raw_line.endswith("\r") else raw_line
@@ -1031,13 +1050,14 @@ def _diagnose_block(
             )
             continue
         parts = line.split(",")
-        if len(parts) < k:
-            rep.add(
-                "fields",
-                f"line {number}",
-                f"expected at least {k} comma-separated fields ({expected}), found {len(parts)}",
-                f"fewer than {k} fields",
+        if len(parts) != n_fields:
+            rule = (
+                f"found {len(parts)} comma-separated fields, the header has {n_fields} "
+                f"({short_repr(header)})"
             )
+            if len(parts) > n_fields:
+                rule += "; a decimal comma? The format's decimal point is '.'"
+            rep.add("fields", f"line {number}", rule, "number of fields differs from the header")
             continue
         row: list[float] = []
         ok = True
@@ -1120,9 +1140,9 @@ def _check_time(
         "time",
         bad.size,
         lambda i: (
-            f"line {lines[later[bad[i]]]}",
+            f"{rep.unit} {lines[later[bad[i]]]}",
             f"time must be strictly increasing{what} (t={_num(t[later[bad[i]]])} after "
-            f"t={_num(t[earlier[bad[i]]])} on line {lines[earlier[bad[i]]]})",
+            f"t={_num(t[earlier[bad[i]]])} on {rep.unit} {lines[earlier[bad[i]]]})",
         ),
         f"time not strictly increasing{what}",
     )
@@ -1143,12 +1163,12 @@ def _check_limit(
     what: str,
     rep: _Reporter,
 ) -> None:
-    rows, cols = np.nonzero(np.abs(values) > limit)
+    rows, cols = np.nonzero(np.isfinite(values) & (np.abs(values) > limit))
     rep.add_many(
         f"limit_{what}",
         rows.size,
         lambda i: (
-            f"line {lines[rows[i]]}, column {names[cols[i]]}",
+            f"{rep.unit} {lines[rows[i]]}, column {names[cols[i]]}",
             f"|{names[cols[i]]}| = {abs(values[rows[i], cols[i]]):.6g} {unit} exceeds the "
             f"physical limit of {limit:g} {unit} for {what}",
         ),
@@ -1172,7 +1192,7 @@ def _check_positive(
         f"sign_{what}",
         rows.size,
         lambda i: (
-            f"line {lines[rows[i]]}, column {names[cols[i]]}",
+            f"{rep.unit} {lines[rows[i]]}, column {names[cols[i]]}",
             f"{what} must be {need} (found {_num(values[rows[i], cols[i]])})",
         ),
         f"{what} not {need}",
@@ -1185,7 +1205,7 @@ def _check_cycle(cycle: FloatArray, lines: IntArray, rep: _Reporter) -> None:
         "cycle",
         bad.size,
         lambda i: (
-            f"line {lines[bad[i]]}, column cycle",
+            f"{rep.unit} {lines[bad[i]]}, column cycle",
             f"cycle must be a non-negative integer (found {_num(cycle[bad[i]])})",
         ),
         "cycle not a non-negative integer",
@@ -1193,7 +1213,12 @@ def _check_cycle(cycle: FloatArray, lines: IntArray, rep: _Reporter) -> None:
 
 
 def _rate_problem(
-    section: str, rate: float, median: float, label: str, lines: dict[_Path, int]
+    section: str,
+    rate: float,
+    median: float,
+    label: str,
+    lines: dict[KeyPath, int],
+    meta_label: str = "meta.yaml",
 ) -> Problem | None:
     measured = 1.0 / median
     if abs(measured - rate) <= RATE_TOLERANCE * rate:
@@ -1201,7 +1226,7 @@ def _rate_problem(
     line = lines.get((section, "rate_hz"))
     where = f"key {section}.rate_hz" + (f" (line {line})" if line else "")
     return Problem(
-        "meta.yaml",
+        meta_label,
         where,
         f"rate_hz = {rate:g} Hz disagrees by more than {RATE_TOLERANCE:.0%} with {label}"
         f", whose median sample interval is {median:.6g} s ({measured:.6g} Hz)",
@@ -1236,15 +1261,16 @@ def _inspect(path: str | Path, *, bridge_imu_gaps: bool) -> tuple[Recording | No
     """Run every check; return the recording (None when any problem was found) and problems."""
     root = Path(path)
     if not root.is_dir():
-        found = "is not a directory" if root.exists() else "does not exist"
+        found = "is not a directory" if os.path.lexists(root) else "does not exist"
         return None, [Problem("", "", f"recording directory {str(root)!r} {found}")]
     meta, raw, key_lines, problems = _load_meta(root / "meta.yaml")
 
-    # Locate the CSV files (plain or gzip-compressed, never both).
+    # Locate the CSV files (plain or gzip-compressed, never both; regular files only).
     files: dict[str, Path] = {}
     for stem in STREAM_COLUMNS:
-        plain, packed = root / f"{stem}.csv", root / f"{stem}.csv.gz"
-        if plain.is_file() and packed.is_file():
+        entries = [root / f"{stem}.csv", root / f"{stem}.csv.gz"]
+        present = [entry for entry in entries if os.path.lexists(entry)]
+        if len(present) == 2:
             problems.append(
                 Problem(
                     f"{stem}.csv",
@@ -1252,12 +1278,14 @@ def _inspect(path: str | Path, *, bridge_imu_gaps: bool) -> tuple[Recording | No
                     f"both {stem}.csv and {stem}.csv.gz are present (ambiguous); keep one",
                 )
             )
-        elif plain.is_file():
-            files[stem] = plain
-        elif packed.is_file():
-            files[stem] = packed
-    if "imu" not in files and not (root / "imu.csv").is_file():
-        problems.append(Problem("imu.csv", "", "required file is missing"))
+        elif present:
+            kind = regular_file_problem(present[0])
+            if kind is None:
+                files[stem] = present[0]
+            else:
+                problems.append(Problem(present[0].name, "", kind))
+        elif stem == "imu":
+            problems.append(Problem("imu.csv", "", "required file is missing"))
 
     # Sections required by the files present (checked on the raw YAML, so that they are
     # reported even when another part of meta.yaml is invalid).
@@ -1313,11 +1341,16 @@ def _inspect(path: str | Path, *, bridge_imu_gaps: bool) -> tuple[Recording | No
             if rate is not None:
                 problems.extend(_check_rate(stem, file.name, table, rate, key_lines))
             if stem == "imu":
-                gaps = _check_imu_gaps(table, rep, report=not bridge_imu_gaps)
+                gaps = _check_imu_gaps(
+                    table.values[:, 0], table.lines, rep, report=not bridge_imu_gaps
+                )
             tables[stem] = table
         problems.extend(rep.finish())
-    problems.extend(_truth_overlap(tables, files))
-
+    times = {stem: table.values[:, 0] for stem, table in tables.items()}
+    problems.extend(_truth_overlap(times, lambda stem: files[stem].name))
+    if "imu" in tables:
+        for warning in _stream_warnings(times, lambda stem: files[stem].name, "no rows"):
+            _log.warning("%s: %s", root, warning)
     if problems or meta is None:
         return None, problems
     if bridge_imu_gaps and gaps:
@@ -1332,29 +1365,83 @@ def _inspect(path: str | Path, *, bridge_imu_gaps: bool) -> tuple[Recording | No
     return _build(root, meta, tables, gaps if bridge_imu_gaps else []), []
 
 
-def _truth_overlap(tables: dict[str, _Table], files: dict[str, Path]) -> list[Problem]:
+def _stream_warnings(
+    times: dict[str, FloatArray], label: Callable[[str], str], empty: str
+) -> list[Problem]:
+    """Streams that hold no samples, and streams that begin before, end after or lie outside
+    the IMU's time span: legal (missing samples are absent rows), but worth a warning, since the
+    engine can use none of those samples.
+
+    Parameters
+    ----------
+    times
+        Time column of each stream present, keyed by stem; ``"imu"`` must be among them.
+    label
+        Name of a stream in the warnings (``odometer.csv``, ``Recording.odometer``).
+    empty
+        What an empty stream has, for its warning (``"no rows"``).
+
+    Notes
+    -----
+    A support.csv without rows is not mentioned: it says that no push happened. A stream
+    reaching less than one IMU sample interval beyond the IMU is inside its span, since the
+    first IMU sample is the mean over the interval before it.
+    """
+    imu = times["imu"]
+    if imu.size == 0:
+        return []
+    start, end = float(imu[0]), float(imu[-1])
+    slack = _median_interval(imu) or 0.0
+    imu_span = f"{label('imu')} t={start:.6g}..{end:.6g} s"
+    warnings: list[Problem] = []
+    for stem, t in times.items():
+        if stem == "imu" or (stem == "support" and t.size == 0):
+            continue
+        if t.size == 0:
+            warnings.append(Problem(label(stem), "", f"the stream has {empty}: no samples"))
+            continue
+        first, last = float(t.min()), float(t.max())
+        if stem == "truth" and (last < start or first > end):
+            continue  # a problem, not a warning (_truth_overlap)
+        spans = f"({label(stem)} t={first:.6g}..{last:.6g} s, {imu_span})"
+        if last < start - slack or first > end + slack:
+            rule = f"lies entirely outside the IMU's time span {spans}: none of it can be used"
+        else:
+            ends = []
+            if first < start - slack:
+                ends.append(f"begins {start - first:.6g} s before")
+            if last > end + slack:
+                ends.append(f"ends {last - end:.6g} s after")
+            if not ends:
+                continue
+            rule = f"{' and '.join(ends)} the IMU {spans}"
+        warnings.append(Problem(label(stem), "", rule))
+    return warnings
+
+
+def _truth_overlap(times: dict[str, FloatArray], label: Callable[[str], str]) -> list[Problem]:
     """A truth whose time span misses the IMU's entirely scores nothing (and scoring it would
     fail): one problem naming both spans."""
-    if "truth" not in tables or "imu" not in tables:
+    if "truth" not in times or "imu" not in times:
         return []
-    t_imu, t_truth = tables["imu"].values[:, 0], tables["truth"].values[:, 0]
+    t_imu, t_truth = times["imu"], times["truth"]
     if t_imu.size == 0 or t_truth.size == 0:
         return []
     if t_truth[-1] >= t_imu[0] and t_truth[0] <= t_imu[-1]:
         return []
     return [
         Problem(
-            files["truth"].name,
+            label("truth"),
             "",
             f"its time span {_num(t_truth[0])}..{_num(t_truth[-1])} s does not overlap"
-            f" {files['imu'].name}'s {_num(t_imu[0])}..{_num(t_imu[-1])} s: the recording's"
+            f" {label('imu')}'s {_num(t_imu[0])}..{_num(t_imu[-1])} s: the recording's"
             " clock lies outside its truth, so nothing can be scored",
         )
     ]
 
 
 def _check_rate(
-    stem: str, label: str, table: _Table, rate: float, key_lines: dict[_Path, int]
+    stem: str, label: str, table: _Table, rate: float, key_lines: dict[KeyPath, int]
 ) -> list[Problem]:
     """Compare ``rate_hz`` with the median sample interval."""
     median = _median_interval(table.values[:, 0])
@@ -1362,22 +1449,36 @@ def _check_rate(
     return [found] if found is not None else []
 
 
-def _check_imu_gaps(table: _Table, rep: _Reporter, *, report: bool) -> list[tuple[float, float]]:
-    """Report (or just return) the gaps of imu.csv longer than 5 median sample intervals."""
-    t, lines = table.values[:, 0], table.lines
+_BRIDGE_BY_READER = "read with bridge_imu_gaps=True to bridge it explicitly"
+
+
+def _check_imu_gaps(
+    t: FloatArray,
+    lines: IntArray,
+    rep: _Reporter,
+    *,
+    report: bool,
+    known: Sequence[tuple[float, float]] = (),
+    hint: str = _BRIDGE_BY_READER,
+) -> list[tuple[float, float]]:
+    """Report (or just return) the IMU gaps longer than 5 median sample intervals; ``known``
+    gaps (already accepted for bridging) are not reported."""
     if t.size < 2 and not rep.problems:
         rep.add("count", "", f"at least 2 samples are required (found {t.size})")
     idx, limit = _imu_gaps(t)
     if report:
+        accepted = set(known)
+        idx = np.array(
+            [i for i in idx if (float(t[i]), float(t[i + 1])) not in accepted], dtype=np.int64
+        )
         rep.add_many(
             "gap",
             idx.size,
             lambda i: (
-                f"lines {lines[idx[i]]}-{lines[idx[i] + 1]} "
+                f"{rep.unit}s {lines[idx[i]]}-{lines[idx[i] + 1]} "
                 f"(t={_num(t[idx[i]])}..{_num(t[idx[i] + 1])} s)",
                 f"gap of {t[idx[i] + 1] - t[idx[i]]:.6g} s is longer than "
-                f"{MAX_IMU_GAP_INTERVALS:g} sample intervals ({limit:.6g} s); "
-                "read with bridge_imu_gaps=True to bridge it explicitly",
+                f"{MAX_IMU_GAP_INTERVALS:g} sample intervals ({limit:.6g} s); {hint}",
             ),
             "IMU gap longer than 5 sample intervals",
         )
@@ -1406,7 +1507,7 @@ def _check_table(stem: str, table: _Table, rep: _Reporter, anchor_ids: list[str]
                 rule = f"unknown anchor id {bad!r} (meta.yaml uwb.anchors has {known})"
                 if hint:
                     rule += f"; did you mean {hint!r}?"
-                return f"line {lines[unknown[i]]}, column anchor", rule
+                return f"{rep.unit} {lines[unknown[i]]}, column anchor", rule
 
             rep.add_many("anchor", unknown.size, make, "unknown anchor id")
     elif stem == "position":
@@ -1609,29 +1710,43 @@ def _report_nonfinite(rep: _Reporter, lines: IntArray, bad: IntArray, name: str)
     rep.add_many(
         "nonfinite",
         bad.size,
-        lambda i: (f"line {lines[bad[i]]}, column {name}", "value is not a finite number"),
+        lambda i: (f"{rep.unit} {lines[bad[i]]}, column {name}", "value is not a finite number"),
         "a value is NaN or infinite",
     )
 
 
-def _writer_problems(
-    recording: Recording, streams: dict[str, tuple[list[npt.NDArray[Any]], str] | None]
+class _Naming(NamedTuple):
+    """How problems name the parts of a recording: its files, or its arrays in memory."""
+
+    stream: Callable[[str], str]  # stem -> label
+    meta: str
+    first_row: int  # number of the first row (a file's line 2, an array's sample 0)
+    unit: str
+
+
+_FILE_NAMING = _Naming(lambda stem: f"{stem}.csv", "meta.yaml", 2, "line")
+_MEMORY_NAMING = _Naming(lambda stem: f"Recording.{stem}", "Recording.meta", 0, "sample")
+
+
+def _array_problems(
+    recording: Recording,
+    streams: dict[str, tuple[list[npt.NDArray[Any]], str] | None],
+    naming: _Naming,
 ) -> list[Problem]:
-    """Format-level checks before writing: finite values, increasing time, sections, ids."""
+    """Format-level checks of arrays: finite values, increasing time, sections, ids."""
     problems: list[Problem] = []
     meta = recording.meta
     for stem, item in streams.items():
         if item is None:
             continue
-        label = f"{stem}.csv"
         section = _SECTION_OF[stem]
         if section is not None and getattr(meta, section) is None:
             problems.append(
-                Problem("meta.yaml", f"key {section}", f"section {section!r} is required")
+                Problem(naming.meta, f"key {section}", f"section {section!r} is required")
             )
         cols, kinds = item
-        rep = _Reporter(label)
-        lines = np.arange(2, len(cols[0]) + 2, dtype=np.int64)
+        rep = _Reporter(naming.stream(stem), unit=naming.unit)
+        lines = np.arange(naming.first_row, len(cols[0]) + naming.first_row, dtype=np.int64)
         names = STREAM_COLUMNS[stem]
         for col, kind, name in zip(cols, kinds, names, strict=True):
             if kind == "f":
@@ -1647,9 +1762,147 @@ def _writer_problems(
         unknown = sorted(set(recording.uwb.anchor_ids) - set(meta.uwb.anchors))
         if unknown:
             problems.append(
-                Problem("meta.yaml", "key uwb.anchors", f"anchor ids {unknown} are not defined")
+                Problem(naming.meta, "key uwb.anchors", f"anchor ids {unknown} are not defined")
             )
     return problems
+
+
+_STREAM_TYPES: dict[str, type] = {
+    "imu": ImuData,
+    "odometer": OdometerData,
+    "magnetometer": MagnetometerData,
+    "uwb": UwbData,
+    "support": SupportData,
+    "position": PositionData,
+    "truth": TruthData,
+}
+
+
+def _type_problems(recording: Recording) -> list[Problem]:
+    """The parts of a recording of the wrong type (the dataclasses do not check them)."""
+    problems = []
+    if not isinstance(recording.meta, RecordingMeta):
+        found = type(recording.meta).__name__
+        problems.append(Problem("Recording.meta", "", f"must be a RecordingMeta (found {found})"))
+    for stem, kind in _STREAM_TYPES.items():
+        value = getattr(recording, stem)
+        if not isinstance(value, kind) and (value is not None or stem == "imu"):
+            allowed = kind.__name__ if stem == "imu" else f"{kind.__name__} or None"
+            problems.append(
+                Problem(
+                    f"Recording.{stem}", "", f"must be {allowed} (found {type(value).__name__})"
+                )
+            )
+    return problems
+
+
+def _physical_problems(
+    recording: Recording, *, bridge_imu_gaps: bool
+) -> tuple[list[Problem], list[tuple[float, float]]]:
+    """The reader's rules that :func:`_array_problems` leaves out: physical limits, rates, IMU
+    gaps (those not in ``recording.imu_gaps``; all are accepted with ``bridge_imu_gaps``).
+    Returns the problems and the IMU gaps to bridge."""
+    naming = _MEMORY_NAMING
+    problems: list[Problem] = []
+    r = recording
+
+    def rows(n: int) -> IntArray:
+        return np.arange(n, dtype=np.int64)
+
+    imu = _Reporter(naming.stream("imu"), unit=naming.unit)
+    imu_rows = rows(r.imu.t.size)
+    names = STREAM_COLUMNS["imu"]
+    _check_limit(r.imu.gyro, imu_rows, names[1:4], MAX_ANGULAR_RATE_RADPS, "rad/s", "gyro", imu)
+    _check_limit(
+        r.imu.accel, imu_rows, names[4:7], MAX_SPECIFIC_FORCE_MPS2, "m/s²", "accelerometer", imu
+    )
+    gaps = _check_imu_gaps(
+        r.imu.t,
+        imu_rows,
+        imu,
+        report=not bridge_imu_gaps,
+        known=r.imu_gaps,
+        hint="set bridge_imu_gaps: true in the configuration to bridge it explicitly",
+    )
+    problems.extend(imu.finish())
+    if r.uwb is not None:
+        rep = _Reporter(naming.stream("uwb"), unit=naming.unit)
+        ranges = r.uwb.range[:, None]
+        _check_positive(ranges, rows(r.uwb.t.size), ("range",), rep, strict=False, what="range")
+        problems.extend(rep.finish())
+    if r.position is not None:
+        rep = _Reporter(naming.stream("position"), unit=naming.unit)
+        sigma_names = STREAM_COLUMNS["position"][4:7]
+        n_fixes = r.position.t.size
+        _check_positive(
+            r.position.sigma, rows(n_fixes), sigma_names, rep, strict=True, what="sigma"
+        )
+        problems.extend(rep.finish())
+    for stem in _RATE_CHECKED:
+        data, section = getattr(r, stem), getattr(r.meta, stem)
+        median = _median_interval(data.t) if data is not None else None
+        if median is not None and section is not None:
+            found = _rate_problem(
+                stem, section.rate_hz, median, naming.stream(stem), {}, naming.meta
+            )
+            problems.extend([found] if found is not None else [])
+    if r.truth is not None:
+        times = {"imu": r.imu.t, "truth": r.truth.t}
+        problems.extend(_truth_overlap(times, naming.stream))
+    known = sorted(set(r.imu_gaps) | set(gaps)) if bridge_imu_gaps else list(r.imu_gaps)
+    return problems, known
+
+
+def check_recording(recording: Recording, *, bridge_imu_gaps: bool = False) -> Recording:
+    """Check a :class:`Recording` built in memory against the rules of the format.
+
+    The rules of :func:`read_recording` that apply to arrays: the types of the parts, ``meta``
+    valid (re-validated, so a value assigned after construction is checked too), every value
+    finite, time strictly increasing (``uwb``: per anchor), at least 2 IMU samples, physically
+    possible values, the meta section of each stream present, the anchor ids defined, the
+    checked rates within 10 %, no IMU gap longer than 5 sample intervals unless it is in
+    ``recording.imu_gaps`` or ``bridge_imu_gaps`` is set, a truth that overlaps the IMU's span.
+    A problem names the part as ``Recording.imu`` and a row as ``sample i`` (its index in the
+    arrays). A recording built in memory (``path`` None) also gets the reader's warnings
+    (logged): streams without samples, streams outside the IMU's time span.
+
+    Parameters
+    ----------
+    recording : Recording
+        The recording, e.g. built by a user's script.
+    bridge_imu_gaps : bool, default False
+        Accept IMU gaps longer than 5 sample intervals and list them in ``imu_gaps``.
+
+    Returns
+    -------
+    Recording
+        ``recording`` itself, or a copy whose ``imu_gaps`` lists the gaps to bridge.
+
+    Raises
+    ------
+    RecordingError
+        Listing every problem found.
+    """
+    problems = _type_problems(recording)
+    if problems:
+        raise RecordingError(problems)
+    try:
+        RecordingMeta.model_validate(recording.meta.model_dump())
+    except ValidationError as exc:
+        raise RecordingError(_meta_problems_from_validation(exc, {}, "Recording.meta")) from None
+    problems = _array_problems(recording, _stream_columns(recording), _MEMORY_NAMING)
+    found, gaps = _physical_problems(recording, bridge_imu_gaps=bridge_imu_gaps)
+    problems.extend(found)
+    if problems:
+        raise RecordingError(problems)
+    if recording.path is None:
+        times = {stem: getattr(recording, stem) for stem in _STREAM_TYPES}
+        present = {stem: data.t for stem, data in times.items() if data is not None}
+        for warning in _stream_warnings(present, _MEMORY_NAMING.stream, "no samples"):
+            _log.warning("in-memory recording: %s", warning)
+    if gaps == list(recording.imu_gaps):
+        return recording
+    return replace(recording, imu_gaps=gaps)
 
 
 def write_recording(recording: Recording, path: str | Path, *, compress: bool = False) -> None:
@@ -1678,7 +1931,7 @@ def write_recording(recording: Recording, path: str | Path, *, compress: bool = 
     """
     root = Path(path)
     streams = _stream_columns(recording)
-    problems = _writer_problems(recording, streams)
+    problems = _array_problems(recording, streams, _FILE_NAMING)
     if problems:
         raise RecordingError(problems, root)
     root.mkdir(parents=True, exist_ok=True)

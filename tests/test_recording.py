@@ -379,10 +379,15 @@ def test_non_numeric_cell(rec: Path) -> None:
 
 
 def test_decimal_comma_is_caught(rec: Path) -> None:
-    set_line(rec / "odometer.csv", 5, "0.3,0,5")  # "0,5" split into two fields: extra column
+    """A decimal comma splits a number into two fields: a row with more fields than the header
+    (``9,81`` was read as 9.0 when extra fields were ignored)."""
+    set_line(rec / "odometer.csv", 5, "0.3,0,5")
     set_line(rec / "support.csv", 2, "0,5;0,8")
-    p = only(problems_of(rec))
-    assert p.file == "support.csv" and p.where == "line 2, column advance"
+    odometer, support = problems_of(rec)
+    assert (odometer.file, odometer.where) == ("odometer.csv", "line 5")
+    assert odometer.rule.startswith("found 3 comma-separated fields, the header has 2 ('t,speed')")
+    assert "decimal comma" in odometer.rule
+    assert (support.file, support.where) == ("support.csv", "line 2")
 
 
 def test_empty_cell(rec: Path) -> None:
@@ -452,7 +457,8 @@ def test_rows_gathered_whatever_the_size_prediction(
 def test_missing_fields(rec: Path) -> None:
     set_line(rec / "imu.csv", 12, "0.1,0,0")
     p = only(problems_of(rec))
-    assert p.where == "line 12" and "at least 7" in p.rule and "found 3" in p.rule
+    assert p.where == "line 12" and p.rule.startswith("found 3 comma-separated fields")
+    assert "the header has 7" in p.rule and "decimal comma" not in p.rule
 
 
 def test_time_not_increasing(rec: Path) -> None:
