@@ -49,7 +49,7 @@ ENTRY_POINT_GROUP = "fusion.plugins"
 class PluginOptions(BaseModel):
     """Base of every plugin's options model (unknown keys are errors)."""
 
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False, validate_assignment=True)
 
 
 @dataclass(frozen=True)

@@ -183,6 +183,17 @@ def test_an_out_of_range_config_value_names_key_value_and_range(
     assert allowed in capsys.readouterr().err
 
 
+def test_a_non_finite_plugin_option_names_its_key(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    config = tmp_path / "c.yaml"
+    config.write_text("name: c\nplugins:\n  - type: odometer\n    sigma_speed_mps: .inf\n")
+    assert main(["validate-config", str(config)]) == EXIT_BAD_INPUT
+    err = capsys.readouterr().err
+    assert "key plugins[0].sigma_speed_mps: must be a finite number (found inf)" in err, err
+    assert err.count("\n") == 1
+
+
 def test_quiet_keeps_to_warnings_and_verbose_adds_debug(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
