@@ -43,9 +43,9 @@ def run(
         When given, the result files (``solution.csv``, ``metrics.json``…, as ``fusion run``
         writes them) are written into this directory.
     force
-        Replace the earlier result in ``out`` (without it, a non-empty ``out`` is refused
-        before the run; with it, only a directory fusion wrote is replaced). The files are
-        written whole, as ``fusion run`` writes them (:mod:`fusion.output_dir`).
+        Replace an earlier result in ``out`` (without it, one is refused before the run);
+        other files in ``out`` are left alone. The files are written whole, as ``fusion run``
+        writes them (:mod:`fusion.output_dir`).
     progress
         Called during the run with the fraction done (0 to 1).
     plots
@@ -62,7 +62,7 @@ def run(
     """
     from fusion.config import FusionConfig, find_config, load_config, parse_config
     from fusion.engine import Engine
-    from fusion.output_dir import OutputTarget, foreign_to_result
+    from fusion.output_dir import RESULT, OutputTarget
     from fusion.outputs import write_outputs
     from fusion.recording import Recording, read_recording
 
@@ -72,7 +72,7 @@ def run(
         cfg = parse_config(dict(config))
     else:
         cfg = load_config(find_config(config))
-    target = None if out is None else OutputTarget(out, force=force, foreign=foreign_to_result)
+    target = None if out is None else OutputTarget(out, force=force, kind=RESULT)
     rec = (
         recording
         if isinstance(recording, Recording)

@@ -40,7 +40,7 @@ exit statuses:
   0    success
   1    runtime failure: the engine failed, an output could not be written, the disk is full
   2    bad command-line arguments, or an output path that is refused (an existing file, a
-       directory that cannot be created, a non-empty directory without --force)
+       directory that cannot be created, an earlier result without --force)
   3    bad input: a recording, configuration, scenario or dataset breaks a rule (the message
        names the file, line or key); validate and run give 3 for the same problem
   130  interrupted (Ctrl-C)
@@ -135,13 +135,13 @@ def _kernels_cached() -> bool:
 def _cmd_run(args: argparse.Namespace) -> int:
     from fusion.config import find_config, load_config
     from fusion.engine import Engine
-    from fusion.output_dir import OutputTarget, foreign_to_result
+    from fusion.output_dir import RESULT, OutputTarget
     from fusion.recording import read_recording
 
     invocation = _invocation(args)
     target = None
     if not args.check:  # a refused --out costs nothing: checked before the recording is read
-        target = OutputTarget(args.out, force=args.force, foreign=foreign_to_result)
+        target = OutputTarget(args.out, force=args.force, kind=RESULT)
     path = find_config(args.config)
     _log.debug("configuration %s", path.resolve())
     config = load_config(path)
@@ -229,7 +229,7 @@ def _cmd_validate_config(args: argparse.Namespace) -> int:
 
 
 def _cmd_simulate(args: argparse.Namespace) -> int:
-    from fusion.output_dir import OutputTarget, foreign_to_recording
+    from fusion.output_dir import RECORDING, OutputTarget
     from fusion.sim.simulate import simulate
 
     if args.list:
@@ -237,7 +237,7 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
     if args.scenario is None or args.out is None:
         print("error: fusion simulate: give SCENARIO and OUT (or --list)", file=sys.stderr)
         return EXIT_USAGE
-    target = OutputTarget(args.out, force=args.force, foreign=foreign_to_recording)
+    target = OutputTarget(args.out, force=args.force, kind=RECORDING)
     with target.staging() as staging, _progress_bar(args, f"simulating {args.scenario}") as bar:
         simulate(args.scenario, staging, seed=args.seed, overrides=args.set, progress=bar)
     _log.info("wrote recording %s", args.out)
@@ -262,9 +262,9 @@ def _cmd_sim_plot(args: argparse.Namespace) -> int:
 
 def _cmd_import(args: argparse.Namespace) -> int:
     from fusion.importers import import_dataset
-    from fusion.output_dir import OutputTarget, foreign_to_recording
+    from fusion.output_dir import RECORDING, OutputTarget
 
-    target = OutputTarget(args.out, force=args.force, foreign=foreign_to_recording)
+    target = OutputTarget(args.out, force=args.force, kind=RECORDING)
     with target.staging() as staging:
         report = import_dataset(args.kind, args.src, staging)
     print(replace(report, out=Path(args.out)))
@@ -276,13 +276,13 @@ def _cmd_demo(args: argparse.Namespace) -> int:
     """Simulate into OUT/recording and fuse it into OUT/result, OUT replaced as a whole."""
     from fusion.config import find_config, load_config
     from fusion.engine import Engine
-    from fusion.output_dir import OutputTarget, foreign_to_demo
+    from fusion.output_dir import DEMO, OutputTarget
     from fusion.recording import read_recording
     from fusion.sim.simulate import simulate
 
     invocation = _invocation(args)
     config = load_config(find_config(args.config))
-    target = OutputTarget(args.out, force=args.force, foreign=foreign_to_demo)
+    target = OutputTarget(args.out, force=args.force, kind=DEMO)
     with target.staging() as staging:
         with _progress_bar(args, f"simulating {args.scenario}") as bar:
             path = simulate(
@@ -326,7 +326,7 @@ def _output_arguments(parser: argparse.ArgumentParser, force: str, *, figures: b
     from fusion.output_dir import FIGURE_FORMATS
 
     parser.add_argument(
-        "--force", action="store_true", help=f"{force} (never a directory of other files)"
+        "--force", action="store_true", help=f"{force} (other files there are left alone)"
     )
     if figures:
         parser.add_argument(

@@ -6,11 +6,12 @@ in it is complete. A process killed at any moment, SIGKILL included, therefore l
 as it was (the complete earlier result, or nothing), never an earlier result's files beside new
 ones and never a cut or empty file under a current name.
 
-The target (:class:`OutputTarget`) is written when it is absent or an empty directory. Anything
-else is refused (:class:`OutputRefused`) unless ``force``; ``force`` replaces only what fusion
-wrote, each kind recognised by its own test (:func:`foreign_to_result`,
-:func:`foreign_to_recording`, :func:`foreign_to_demo`), and a directory holding one file fusion
-did not write is refused even then.
+The target (:class:`OutputTarget`) may be absent, an empty directory, or a directory holding
+other files (a log the caller redirected there, notes): fusion adds its files beside them and
+never touches them, and it refuses (:class:`OutputRefused`) a directory where one of them bears
+a name fusion would write. An earlier output of the same kind (:data:`RESULT`, a ``run.json``
+and the files it lists; :data:`RECORDING`; :data:`DEMO`) is replaced only with ``force``, and
+then whole: its files that the new output does not write go too, never left stale.
 
 The swap: an absent or empty target is replaced by one ``rename(2)``, which is atomic. A previous
 result is first renamed aside (``.NAME.replaced-PID``), the staging directory renamed into place,
@@ -19,11 +20,12 @@ then the previous result deleted: a kill between the two renames leaves no resul
 before it (nothing written) or after it (the new result in place). The hidden directories of a
 killed process (whose PID is gone) are deleted by the next write to the same target.
 
-Where a rename cannot do the swap (the target is a mount point, or its parent another filesystem
-or not writable: a container's output volume), the staging directory is made inside the target
-(``.fusion-staging-PID``, when the parent cannot be written) and its files moved into place one by
-one, ``run.json`` last, after the earlier result's files (its ``run.json`` first): a kill part-way
-then leaves a directory without ``run.json``, which is no result.
+Where the target holds other files, or a rename cannot do the swap (the target is a mount point,
+or its parent another filesystem or not writable: a container's output volume), the staging
+directory is made inside the target (``.fusion-staging-PID``, when the parent cannot be written)
+and its files moved into place one by one, ``run.json`` last, after the earlier result's files
+(its ``run.json`` first): a kill part-way then leaves a directory without ``run.json``, which is
+no result.
 """
 
 from __future__ import annotations
@@ -36,20 +38,22 @@ import shutil
 import signal
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
+from dataclasses import dataclass
 from pathlib import Path
 
 from fusion.recording import STREAM_COLUMNS
 
 __all__ = [
+    "DEMO",
     "FIGURE_FORMATS",
+    "RECORDING",
     "RECORDING_FILES",
+    "RESULT",
     "RUN_JSON",
+    "OutputKind",
     "OutputRefused",
     "OutputTarget",
     "OutputWriteError",
-    "foreign_to_demo",
-    "foreign_to_recording",
-    "foreign_to_result",
 ]
 
 RUN_JSON = "run.json"
@@ -69,9 +73,6 @@ DEMO_ENTRIES = ("recording", "result")
 INSIDE_STAGING = re.compile(r"\.fusion-staging-(\d+)")
 """The name of a staging directory made inside the target (its parent could not be written)."""
 
-Recogniser = Callable[[Path], "str | None"]
-"""Why a directory is not one fusion wrote (naming an entry), or None when it is."""
-
 
 class OutputRefused(ValueError):
     """The target exists and may not be replaced; the message names it and the rule."""
@@ -81,37 +82,59 @@ class OutputWriteError(OSError):
     """The result could not be written (disk full, no permission); nothing was replaced."""
 
 
-def foreign_to_result(path: Path) -> str | None:
-    """None when ``path`` is a result of ``fusion run``: a ``run.json`` that lists every other
-    file in the directory; else why not."""
+@dataclass(frozen=True)
+class OutputKind:
+    """What fusion writes into one kind of target."""
+
+    name: str
+    earlier: Callable[[Path], frozenset[str]]
+    """The entries of a directory that an earlier output of this kind holds."""
+    writes: Callable[[str], bool]
+    """Whether fusion may write an entry of this name into such a target."""
+
+
+RESULT_FILES = frozenset(
+    ["solution.csv", "smoothed.csv", "states.csv", "metrics.json", "faults.csv", RUN_JSON]
+    + [f"{stem}.{ext}" for stem in ("plan", "errors", "observability") for ext in FIGURE_FORMATS]
+)
+"""Every file name a result of ``fusion run`` may hold (the figures in every format)."""
+
+
+def _result_entries(path: Path) -> frozenset[str]:
+    """``run.json`` and the files it lists, those present; nothing without a readable one."""
     try:
         listed = json.loads((path / RUN_JSON).read_text(encoding="utf-8"))["files"]
+        names = {RUN_JSON, *(n for n in listed if isinstance(n, str))}
     except (OSError, ValueError, KeyError, TypeError):
-        return f"it holds no readable {RUN_JSON}, so it is not a fusion result"
-    return _foreign(path, set(listed) | {RUN_JSON}, "its run.json does not list")
+        return frozenset()
+    return frozenset(names & set(_entries(path)))
 
 
-def foreign_to_recording(path: Path) -> str | None:
-    """None when ``path`` holds a ``meta.yaml`` and nothing but recording files; else why not."""
+def _recording_entries(path: Path) -> frozenset[str]:
+    """The recording files, when a ``meta.yaml`` says the directory holds a recording."""
     if not (path / "meta.yaml").is_file():
-        return "it holds no meta.yaml, so it is not a recording"
-    return _foreign(path, RECORDING_FILES, "a recording has no such file")
+        return frozenset()
+    return frozenset(RECORDING_FILES & set(_entries(path)))
 
 
-def foreign_to_demo(path: Path) -> str | None:
-    """None when ``path`` is the output of ``fusion demo`` (``recording/`` and ``result/``, each
-    recognised as such); else why not."""
-    reason = _foreign(path, set(DEMO_ENTRIES), "fusion demo writes only recording/ and result/")
-    for name, test in zip(DEMO_ENTRIES, (foreign_to_recording, foreign_to_result), strict=True):
-        if reason is None and (path / name).exists():
-            inner = test(path / name) if (path / name).is_dir() else "it is not a directory"
-            reason = None if inner is None else f"{name}/: {inner}"
-    return reason
+def _demo_entries(path: Path) -> frozenset[str]:
+    """``recording/`` and ``result/`` when each holds nothing but an earlier one of its kind."""
+    found = set()
+    for name, kind in zip(DEMO_ENTRIES, (RECORDING, RESULT), strict=True):
+        entry = path / name
+        if entry.is_dir() and not entry.is_symlink():
+            inside = set(_entries(entry))
+            if inside and inside == kind.earlier(entry):
+                found.add(name)
+    return frozenset(found)
 
 
-def _foreign(path: Path, allowed: set[str] | frozenset[str], rule: str) -> str | None:
-    extra = sorted(set(_entries(path)) - allowed)
-    return f"it holds {extra[0]!r}, which fusion did not write ({rule})" if extra else None
+RESULT = OutputKind("result", _result_entries, RESULT_FILES.__contains__)
+"""The result of ``fusion run``, recognised by its ``run.json``."""
+RECORDING = OutputKind("recording", _recording_entries, RECORDING_FILES.__contains__)
+"""A recording written by ``fusion simulate`` or ``fusion import``."""
+DEMO = OutputKind("demo", _demo_entries, frozenset(DEMO_ENTRIES).__contains__)
+"""The output of ``fusion demo``: ``recording/`` and ``result/``."""
 
 
 class OutputTarget:
@@ -123,15 +146,17 @@ class OutputTarget:
     Raises
     ------
     OutputRefused
-        ``path`` is not a directory, or is a non-empty one and ``force`` is not given, or
-        ``force`` is given and ``foreign`` finds something fusion did not write.
+        ``path`` is not a directory (nor can become one), holds a file fusion did not write
+        under a name it writes, or holds an earlier output and ``force`` is not given.
     """
 
-    def __init__(self, path: str | Path, *, force: bool, foreign: Recogniser) -> None:
+    def __init__(self, path: str | Path, *, force: bool, kind: OutputKind) -> None:
         self.shown = str(path)
         self.path = Path(path).resolve()
         self.force = force
-        self.foreign = foreign
+        self.kind = kind
+        self.earlier: frozenset[str] = frozenset()
+        self.others: frozenset[str] = frozenset()
         self.had_result = self._check()
 
     def _check(self) -> bool:
@@ -145,20 +170,20 @@ class OutputTarget:
             return False
         if not self.path.is_dir():
             raise OutputRefused(f"{self.shown}: exists and is not a directory")
-        if not _entries(self.path):
-            return False
-        if not self.force:
+        entries = set(_entries(self.path))
+        self.earlier = self.kind.earlier(self.path)
+        self.others = frozenset(entries - self.earlier)
+        clash = sorted(name for name in self.others if self.kind.writes(name))
+        if clash:
             raise OutputRefused(
-                f"{self.shown}: directory is not empty; give --force to replace what fusion"
-                " wrote there"
+                f"{self.shown}: holds {clash[0]!r}, which fusion did not write and would"
+                " overwrite; move it or choose another directory"
             )
-        reason = self.foreign(self.path)
-        if reason is not None:
+        if self.earlier and not self.force:
             raise OutputRefused(
-                f"{self.shown}: not replaced although --force was given: {reason};"
-                " --force replaces only what fusion wrote"
+                f"{self.shown}: holds an earlier {self.kind.name}; give --force to replace it"
             )
-        return True
+        return bool(self.earlier)
 
     def kept(self) -> str:
         """What the target holds when nothing new was written."""
@@ -186,6 +211,9 @@ class OutputTarget:
         try:
             yield staging
             self._check()  # unchanged since the start? (a foreign file may have appeared)
+            clash = sorted(self.others & {entry.name for entry in staging.iterdir()})
+            if clash:
+                raise OutputRefused(f"{self.shown}: holds {clash[0]!r}, which fusion did not write")
         except KeyboardInterrupt:
             shutil.rmtree(staging, ignore_errors=True)
             raise KeyboardInterrupt(f"nothing written; {self.kept()}") from None
@@ -232,7 +260,7 @@ class OutputTarget:
         if held:
             signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
         try:
-            if staging.parent == self.path:
+            if staging.parent == self.path or self.others:
                 self._move_into(staging)
             else:
                 try:
@@ -260,9 +288,9 @@ class OutputTarget:
         shutil.rmtree(aside, ignore_errors=True)
 
     def _move_into(self, staging: Path) -> None:
-        """Delete the earlier result's entries (``run.json`` first), then move the staged ones
-        into the target (``run.json`` last) and remove ``staging``."""
-        earlier = [self.path / name for name in _entries(self.path) if name != staging.name]
+        """Delete the earlier output's entries (``run.json`` first), then move the staged ones
+        into the target (``run.json`` last) and remove ``staging``; other files stay."""
+        earlier = [self.path / name for name in self.earlier]
         for entry in sorted(earlier, key=lambda e: e.name != RUN_JSON):
             if entry.is_dir() and not entry.is_symlink():
                 shutil.rmtree(entry)

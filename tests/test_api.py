@@ -47,7 +47,7 @@ def test_run_reports_progress_and_writes_only_where_allowed(
     assert done == sorted(done) and 0.99 <= done[-1] <= 1.0 and len(done) > 10
     written = {p.name for p in (tmp_path / "res").iterdir()}
     assert "solution.csv" in written and not any(n.endswith(".png") for n in written)
-    with pytest.raises(OutputRefused, match="not empty"):
+    with pytest.raises(OutputRefused, match="holds an earlier result"):
         fusion.run(config, recording, out=tmp_path / "res")
     (tmp_path / "res" / "solution.csv").unlink()
     fusion.run(config, recording, out=tmp_path / "res", force=True)

@@ -23,7 +23,7 @@ from fusion import __version__
 from fusion.cli import EXIT_INTERRUPTED, EXIT_USAGE, main
 from fusion.config import FusionConfig, parse_config
 from fusion.engine import Engine, RunResult
-from fusion.output_dir import OutputTarget, foreign_to_demo, foreign_to_result
+from fusion.output_dir import DEMO, RECORDING, RESULT, OutputRefused, OutputTarget
 from fusion.outputs import write_outputs
 from fusion.recording import Recording, read_recording, write_recording
 from tests.test_engine import make_recording
@@ -107,14 +107,14 @@ def test_a_second_run_is_refused_and_force_replaces_only_a_fusion_result(
     capsys.readouterr()
     assert _fusion_run(inputs, out) == EXIT_USAGE
     err = capsys.readouterr().err
-    refused = "directory is not empty; give --force to replace what fusion wrote there"
-    assert err == f"error: {out}: {refused}\n"  # one line
+    assert err == f"error: {out}: holds an earlier result; give --force to replace it\n"
     assert _complete(out) == first  # untouched
 
-    (out / "stale.png").write_bytes(b"from a run before run.json existed")
+    (out / "plan.png").write_bytes(b"from a run before run.json existed")  # not listed
     assert _fusion_run(inputs, out, "--force") == EXIT_USAGE
-    assert "'stale.png', which fusion did not write" in capsys.readouterr().err
-    (out / "stale.png").unlink()
+    err = capsys.readouterr().err
+    assert "'plan.png', which fusion did not write and would overwrite" in err
+    (out / "plan.png").unlink()
 
     (out / "faults.csv").write_text("time_s\n")  # an earlier result's extra file, listed
     first["files"]["faults.csv"] = {"bytes": 7, "sha256": _sha256(out / "faults.csv")}
@@ -135,16 +135,19 @@ def test_a_second_run_is_refused_and_force_replaces_only_a_fusion_result(
 def test_recording_directories_are_refused_the_same_way(
     command: list[str], tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    """Refused before any work; --force replaces only a recording (meta.yaml and stream files)."""
+    """Refused before any work: an earlier recording without --force, and a file fusion did not
+    write under a recording file's name (no meta.yaml beside it) even with --force."""
     out = tmp_path / "rec"
     out.mkdir()
     (out / "meta.yaml").write_text("mine")
     assert main([*command, str(out)]) == EXIT_USAGE
-    assert "directory is not empty" in capsys.readouterr().err
-    (out / "notes.txt").write_text("mine")
+    assert "holds an earlier recording; give --force" in capsys.readouterr().err
+    (out / "meta.yaml").rename(out / "notes.yaml")
+    (out / "imu.csv").write_text("mine")
     assert main([*command, str(out), "--force"]) == EXIT_USAGE
-    assert "'notes.txt', which fusion did not write" in capsys.readouterr().err
-    assert sorted(os.listdir(out)) == ["meta.yaml", "notes.txt"]
+    assert "'imu.csv', which fusion did not write" in capsys.readouterr().err
+    assert sorted(os.listdir(out)) == ["imu.csv", "notes.yaml"]
+    assert RECORDING.earlier(out) == frozenset()
 
 
 def test_a_demo_directory_is_recognised_by_its_recording_and_result(tmp_path: Path) -> None:
@@ -155,12 +158,33 @@ def test_a_demo_directory_is_recognised_by_its_recording_and_result(tmp_path: Pa
     (demo / "result").mkdir()
     (demo / "result" / "run.json").write_text('{"files": ["solution.csv"]}')
     (demo / "result" / "solution.csv").write_text("")
-    assert foreign_to_demo(demo) is None
-    (demo / "result" / "extra.png").write_text("")
-    assert "result/: it holds 'extra.png'" in str(foreign_to_demo(demo))
-    (demo / "result" / "extra.png").unlink()
-    (demo / "README").write_text("")
-    assert "'README'" in str(foreign_to_demo(demo))
+    (demo / "README").write_text("")  # the caller's: left alone
+    assert DEMO.earlier(demo) == {"recording", "result"}
+    (demo / "result" / "extra.png").write_text("")  # result/ is no longer only a result
+    assert DEMO.earlier(demo) == {"recording"}
+    with pytest.raises(OutputRefused, match="holds 'result', which fusion did not write"):
+        OutputTarget(demo, force=True, kind=DEMO)
+
+
+def test_a_directory_of_other_files_gets_the_result_beside_them(
+    run: tuple[RunResult, Recording], tmp_path: Path
+) -> None:
+    """A caller's log redirected into --out before the run: written beside, never touched; a
+    second run then needs --force and replaces the result, the log still untouched."""
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "stdout.log").write_text("the caller's")
+    target = OutputTarget(out, force=False, kind=RESULT)
+    with target.staging() as staging:
+        write_outputs(*run, staging, plots=False)
+    record = json.loads((out / "run.json").read_text())
+    assert sorted(os.listdir(out)) == sorted([*record["files"], "run.json", "stdout.log"])
+    with pytest.raises(OutputRefused, match="holds an earlier result"):
+        OutputTarget(out, force=False, kind=RESULT)
+    _publish(run, out)
+    assert json.loads((out / "run.json").read_text())["started_utc"] != record["started_utc"]
+    assert (out / "stdout.log").read_text() == "the caller's"
+    assert _hidden_beside(out) == []
 
 
 def test_figures_in_the_format_asked_and_errors_draw_the_smoothed_track(
@@ -188,7 +212,7 @@ def test_figures_in_the_format_asked_and_errors_draw_the_smoothed_track(
 
 def _publish(run: tuple[RunResult, Recording], out: Path) -> None:
     """What ``fusion run --force`` does once the engine is done."""
-    target = OutputTarget(out, force=True, foreign=foreign_to_result)
+    target = OutputTarget(out, force=True, kind=RESULT)
     with target.staging() as staging:
         write_outputs(*run, staging, plots=False)
 
@@ -346,7 +370,7 @@ def test_an_unwritable_parent_stages_inside_the_target(
 ) -> None:
     dead = earlier / ".fusion-staging-999999999"  # a killed run's, inside: ignored, then deleted
     dead.mkdir()
-    OutputTarget(earlier, force=True, foreign=foreign_to_result)  # not foreign, not refused
+    OutputTarget(earlier, force=True, kind=RESULT)  # not refused
     real = Path.mkdir
 
     def mkdir(self: Path, *args: Any, **kwargs: Any) -> None:
