@@ -124,6 +124,21 @@ def test_a_missing_or_unreadable_recording_is_bad_input_for_every_command(
     assert "truth.csv: required file is missing" in capsys.readouterr().err
 
 
+def test_sim_plot_of_a_malformed_truth_or_meta_is_bad_input(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    rec = _truth_only(tmp_path / "rec")
+    truth = rec / "truth.csv"
+    truth.write_text(truth.read_text() + "\n3,3,0,0,1,0,0,0,0,0,x\n")
+    assert main(["sim-plot", str(rec), str(tmp_path / "a.png")]) == EXIT_BAD_INPUT
+    err = capsys.readouterr().err
+    assert "truth.csv: cannot be read as 11 numeric columns" in err and "Traceback" not in err
+    rec = _truth_only(tmp_path / "rec2")
+    (rec / "meta.yaml").write_text("name: a\nname: b\n")
+    assert main(["sim-plot", str(rec), str(tmp_path / "b.png")]) == EXIT_BAD_INPUT
+    assert "meta.yaml, line 2: duplicate key 'name'" in capsys.readouterr().err
+
+
 def test_a_clock_outside_its_truth_is_bad_input_for_validate_and_run(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:

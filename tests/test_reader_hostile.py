@@ -27,6 +27,7 @@ from fusion.recording import (
     validate_recording,
     write_recording,
 )
+from fusion.sim.scenario import ScenarioError, load_scenario
 from fusion.yaml_limits import MAX_ALIAS_NODES, MAX_NESTING
 from tests.test_recording import get_line, make_recording, only, problems_of, set_line
 
@@ -112,6 +113,29 @@ def test_config_that_is_a_fifo_does_not_block(tmp_path: Path) -> None:
     os.mkfifo(tmp_path / "config.yaml")
     with pytest.raises(ConfigError, match="not a regular file: a named pipe"):
         load_config(tmp_path / "config.yaml")
+
+
+def test_a_scenario_file_goes_through_the_same_limits(tmp_path: Path) -> None:
+    """A user's scenario YAML (``fusion simulate my.yaml``): the same loader as configs."""
+    bomb = "".join(
+        f"{n}: &{n} [{', '.join([f'*{p}' if p else '0'] * 10)}]\n"
+        for p, n in zip(["", "a", "b", "c", "d"], "abcde", strict=True)
+    )
+    cases = [
+        ("extends: seed000-carrier\nduration_s: 5\nduration_s: 6\n", 3, "duplicate key"),
+        ("extends: seed000-carrier\n" + bomb, 5, "aliases expand the document"),
+    ]
+    for text, line, rule in cases:
+        path = tmp_path / "scenario.yaml"
+        path.write_text(text)
+        with pytest.raises(ScenarioError) as info:
+            load_scenario(path)
+        assert str(info.value).startswith(f"scenario {path}, line {line}: ") and rule in str(
+            info.value
+        )
+    os.mkfifo(tmp_path / "pipe.yaml")
+    with pytest.raises(ScenarioError, match="not a regular file: a named pipe"):
+        load_scenario(tmp_path / "pipe.yaml")
 
 
 # ------------------------------------------------------------------------------------------

@@ -22,11 +22,11 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 import numpy as np
-import yaml
 from numpy.typing import NDArray
 
 from fusion.attitude import dcm_from_euler
 from fusion.recording import Problem, RecordingError
+from fusion.yaml_limits import YamlError, load_yaml
 
 
 def _read_truth(root: Path) -> NDArray[np.float64]:
@@ -41,7 +41,11 @@ def _read_truth(root: Path) -> NDArray[np.float64]:
     else:
         problem = Problem("truth.csv", "", "required file is missing (the figure is of the truth)")
         raise RecordingError([problem], root)
-    data = np.loadtxt(io.BytesIO(text), delimiter=",", skiprows=1, usecols=range(11), ndmin=2)
+    try:
+        data = np.loadtxt(io.BytesIO(text), delimiter=",", skiprows=1, usecols=range(11), ndmin=2)
+    except ValueError as exc:  # the reader's rules are not applied here: say what failed
+        problem = Problem("truth.csv", "", f"cannot be read as 11 numeric columns ({exc})")
+        raise RecordingError([problem], root) from None
     return np.asarray(data, dtype=float)
 
 
@@ -66,8 +70,12 @@ def plot_truth(
     """
     root = Path(recording_dir)
     meta: dict[str, Any] = {}
-    if (root / "meta.yaml").exists():
-        meta = yaml.safe_load((root / "meta.yaml").read_text(encoding="utf-8")) or {}
+    if (root / "meta.yaml").is_file():
+        try:
+            meta = load_yaml((root / "meta.yaml").read_bytes()).data or {}
+        except YamlError as exc:
+            line = f"line {exc.line}" if exc.line is not None else ""
+            raise RecordingError([Problem("meta.yaml", line, exc.rule)], root) from None
     d = _read_truth(root)
     step = max(1, int(np.ceil(d.shape[0] / max_points)))
     d = d[::step]

@@ -37,6 +37,7 @@ whose parent does not exist is an error naming it.
 
 from __future__ import annotations
 
+import os
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any, Literal
@@ -51,6 +52,7 @@ from pydantic import (
     model_validator,
 )
 
+from fusion.input_files import regular_file_problem
 from fusion.sim.faults import FaultSpec
 from fusion.sim.sensors import (
     IMU_GRADES,
@@ -63,6 +65,7 @@ from fusion.sim.sensors import (
     UwbModel,
 )
 from fusion.validation import error_lines
+from fusion.yaml_limits import YamlError, load_yaml
 
 SCENARIO_DIR = Path(__file__).with_name("scenarios")
 
@@ -480,10 +483,16 @@ def read_scenario_mapping(name_or_path: str | Path, _depth: int = 0) -> tuple[di
         if not path.exists():
             known = ", ".join(n for n, _ in list_presets())
             raise ScenarioError(f"unknown scenario {name_or_path!r} (presets: {known})")
+    problem = regular_file_problem(path) if os.path.lexists(path) else None
+    if problem is not None:
+        raise ScenarioError(f"cannot read scenario {path}: {problem}")
     try:
-        data = yaml.safe_load(path.read_text(encoding="utf-8"))
-    except (OSError, yaml.YAMLError) as exc:
-        raise ScenarioError(f"cannot read scenario {path}: {exc}") from exc
+        data = load_yaml(path.read_bytes()).data
+    except OSError as exc:
+        raise ScenarioError(f"cannot read scenario {path}: {exc.strerror or exc}") from None
+    except YamlError as exc:
+        where = f", line {exc.line}" if exc.line is not None else ""
+        raise ScenarioError(f"scenario {path}{where}: {exc.rule}") from None
     if not isinstance(data, dict):
         raise ScenarioError(f"invalid scenario {path}: top level must be a mapping")
     base = data.pop("extends", None)
