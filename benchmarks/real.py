@@ -18,7 +18,7 @@ rtklib-drive (car, 100 Hz MEMS IMU, 4 Hz RTK)
     the dependence on the IMU sampling-lag handling (the importer's ``imu_lag_s``).
 
 PyShoe (foot IMU, Vicon)
-    The ZUPT plugin's detector (:func:`plugins.zupt.detect_stationary`) with the plugin's
+    The ZUPT plugin's detector (:func:`fusion.aiding.zupt.detect_stationary`) with the plugin's
     datasheet-derived thresholds and with the foot setting of ``configs/real_pyshoe.yaml``,
     scored per sample against the trial's optimal zero-velocity labels (those of its best
     detector): precision, recall, F1. The SINS + ZUPT trajectory is scored as PyShoe scores
@@ -388,7 +388,7 @@ def _drive_zupt_detector(
     rec: Recording, result: RunResult, windows: Sequence[tuple[float, float]]
 ) -> str:
     """How the ZUPT detector labels the car's standstills, and which ZUPTs the gate let in."""
-    from plugins.zupt import StationaryThresholds, detect_stationary
+    from fusion.aiding.zupt import StationaryThresholds, detect_stationary
 
     config = config_variant("real_drive", enable=("zupt",))
     block = next(b for b in config.plugins if b.instance_name == "zupt")
@@ -530,8 +530,8 @@ def pyshoe_section(work: Path) -> Section:
     if not folder.exists():
         sec.text = f"Skipped: dataset folder {folder} not found."
         return sec
+    from fusion.aiding.zupt import StationaryThresholds, default_thresholds, detect_stationary
     from fusion.earth import normal_gravity
-    from plugins.zupt import StationaryThresholds, default_thresholds, detect_stationary
 
     config = load_config(REPO / "configs" / "real_pyshoe.yaml")
     opts = config.plugins[0].options
@@ -593,8 +593,8 @@ def pyshoe_section(work: Path) -> Section:
     sec.figures.append(figure)
     sec.text = "\n".join(
         [
-            "Detector: `plugins.zupt.detect_stationary` (offline, 25 ms median window) against "
-            "the trial's optimal zero-velocity labels (`zv_<best_detector>_opt`), per IMU "
+            "Detector: `fusion.aiding.zupt.detect_stationary` (offline, 25 ms median window) "
+            "against the trial's optimal zero-velocity labels (`zv_<best_detector>_opt`), per IMU "
             "sample. *Datasheet* = the plugin's default thresholds from the 3DM-GX3-25 figures "
             "in meta.yaml; *foot* = the one setting of `configs/real_pyshoe.yaml` for all "
             "trials. Position: SINS + ZUPT (foot thresholds) vs Vicon; *ARMSE* is PyShoe's "

@@ -76,8 +76,8 @@ class _LogHandler(logging.Handler):
 
 
 _HANDLER = _LogHandler()
-_PROJECT_LOGGERS = ("fusion", "plugins")
-"""The package's loggers and the bundled plugins' (``plugins.cpoem``…)."""
+_PROJECT_LOGGERS = ("fusion",)
+"""The package's loggers, the bundled plugins' (``fusion.aiding.cpoem``…) among them."""
 
 
 def _configure_logging(args: argparse.Namespace) -> None:

@@ -456,7 +456,7 @@ _TILT_AND_ACCEL_BIAS = np.ix_(np.r_[3:6, 12:15], np.r_[3:6, 12:15])
 KNOWN_SIGMAS = 10.0
 """How many σ of its own error a nominal quantity in a Jacobian must exceed to inform the
 heading: the horizontal specific force (:func:`observable_force`), the SINS velocity of the
-motion constraint's attitude columns (:meth:`plugins.odometer.Odometer`)."""
+motion constraint's attitude columns (:meth:`fusion.aiding.odometer.Odometer`)."""
 
 
 class SpecificForceFilter:

@@ -12,6 +12,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from fusion.aiding.cpoem import Cpoem, CpoemOptions
 from fusion.attitude import dcm_from_euler
 from fusion.config import FusionConfig, load_config, parse_config
 from fusion.engine import Engine, RunResult
@@ -26,7 +27,6 @@ from fusion.recording import (
     read_recording,
 )
 from fusion.sim.simulate import simulate
-from plugins.cpoem import Cpoem, CpoemOptions
 from tests.plugin_support import (
     group_rms,
     layout_with,
@@ -465,7 +465,7 @@ def test_cpoem_reduces_the_error_across_the_face(
     most half; with the MEMS grade (10 short runs) every one of them; with the preset's
     MTi-G-700 (one full run), whose 0.2 °/s turn-on gyro bias turns the heading by tens of
     degrees in the first pass, the first correction (cycle 2) is only partial, so each of
-    them must merely be lower. Along the face CPOEM measures nothing (plugins/cpoem.py)."""
+    them must merely be lower. Along the face CPOEM measures nothing (fusion/aiding/cpoem.py)."""
     runs, per_cycle = (mems_runs, 0.5) if grade == "seed002-mems" else (preset_runs, 1.0)
     base = np.mean([r.across_baseline for r in runs], axis=0)
     fused = np.mean([r.across_cpoem for r in runs], axis=0)
@@ -483,7 +483,7 @@ def test_consistency_over_20_seeds(
     """With the noise the simulator used (:func:`_matched_config`), pooled over 20 seeds: the
     CPOEM innovations' whitened RMS in [0.7, 1.3] and RMS(err/σ) < 1.5 for velocity, attitude
     and position (at every tenth odometer epoch). The stored points' errors are correlated with
-    the filter's (plugins/cpoem.py); taken as independent noise, R × n (the weighting before
+    the filter's (fusion/aiding/cpoem.py); taken as independent noise, R × n (the weighting before
     the cross-covariances were tracked) gave a whitened RMS of 0.20. With the shipped
     configuration, pessimistic on this simulator, the position must still be within 1.5σ and
     the innovations not optimistic (whitened ≤ 1.3), over the first 10 seeds."""

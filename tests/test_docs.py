@@ -52,11 +52,11 @@ def test_relative_links_resolve_inside_the_repository(doc: Path) -> None:
 
 
 def test_readme_layout_names_every_module() -> None:
-    """The layout section has a line for every module of fusion/, plugins/ and benchmarks/."""
+    """The layout section has a line for every module of fusion/ and benchmarks/."""
     layout = _section(README.read_text(encoding="utf-8"), "Layout")
     modules = sorted(
         p.relative_to(ROOT).as_posix()
-        for package in ("fusion", "plugins", "benchmarks")
+        for package in ("fusion", "benchmarks")
         for p in (ROOT / package).rglob("*.py")
     )
     missing = [m for m in modules if f"`{m}`" not in layout]

@@ -121,7 +121,7 @@ def test_odometer_slip_taken_in_as_a_jump(recordings: dict[str, Recording], tmp_
     clean run: seeds 0–7 give 0.77–1.2× except seed 3, 2.0× (1.9 m against 1.0 m; its onset
     estimate 0.269 ± 0.008 against 0.303 leaves 3 cm/s in the velocity during the slip).
     Before the odometer's reference windows were split at a slip's onset and end
-    (plugins.reference_speed) this seed gave 5.6 m, 1.7×."""
+    (fusion.aiding.reference_speed) this seed gave 5.6 m, 1.7×."""
     fault = "faults=[{kind: odometer_slip, t_start: 60, t_end: 75, slip_ratio: 0.3}]"
     simulate("seed003-brokenline", tmp_path / "slip", seed=2, overrides=[*SHORT, fault])
     slipping = read_recording(tmp_path / "slip")

@@ -286,7 +286,7 @@ def test_five_source_partition_tracks_the_centralized_filter(tmp_path: Path) -> 
     the five ranges of a round into the odometer's and magnetometer's rounds, and these second
     order terms then reach 5 mm (against 2 cm horizontal RMS for both). Each anchor at 10 Hz
     (the preset's 40 Hz: the same, at four times the work). ``filter.observable_force`` off in
-    both: with it a range update considers the heading (Schmidt, :mod:`plugins.uwb`), and a
+    both: with it a range update considers the heading (Schmidt, :mod:`fusion.aiding.uwb`), and a
     local's Schmidt update is not its measurement's information, which is what the fusion
     adds up (with it on the two tracks differ by 2 mm)."""
     simulate(

@@ -22,6 +22,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
+from fusion.aiding.magnetometer import Magnetometer, MagnetometerOptions
 from fusion.attitude import dcm_from_euler
 from fusion.config import load_config, parse_config
 from fusion.engine import Engine, RunResult
@@ -29,7 +30,6 @@ from fusion.metrics import interpolate_truth
 from fusion.plugin import Measurement
 from fusion.recording import MagnetometerData, Recording, read_recording
 from fusion.sim.simulate import simulate
-from plugins.magnetometer import Magnetometer, MagnetometerOptions
 from tests.plugin_support import (
     group_rms,
     layout_with,

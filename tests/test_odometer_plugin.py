@@ -9,6 +9,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from fusion.aiding.odometer import Odometer, OdometerOptions, still_readings
+from fusion.aiding.reference_speed import ReferenceSpeed
 from fusion.attitude import dcm_from_euler, dcm_from_quat, quat_from_rotvec, skew
 from fusion.config import FusionConfig, load_config, parse_config
 from fusion.engine import Engine
@@ -16,8 +18,6 @@ from fusion.metrics import compute_metrics
 from fusion.recording import OdometerData, OdometerMeta, Recording, read_recording
 from fusion.sim.scenario import load_scenario
 from fusion.sim.simulate import simulate
-from plugins.odometer import Odometer, OdometerOptions, still_readings
-from plugins.reference_speed import ReferenceSpeed
 from tests.plugin_support import (
     SEED002_SPEC,
     layout_with,
@@ -265,7 +265,7 @@ def test_monte_carlo_consistency(tmp_path: Path) -> None:
     over 3 of these seeds: the filter believed its accelerometer bias constant. With σ at the
     encoder's noise and the scale column at the mean of the last second's readings (no steady
     window), δk_D walked 3–4σ along its unobservable direction and position RMS(err/σ) was 1.4
-    (plugins.reference_speed). The shipped 1 cm/s gives a whitened RMS of ≈ 0.4 and a smaller
+    (fusion.aiding.reference_speed). The shipped 1 cm/s gives a whitened RMS of ≈ 0.4 and a smaller
     horizontal error (0.27 m against 0.38 m on 8 of these seeds): README, "Odometer noise"."""
     config = _matched_odometer(load_config(CONFIGS / "sins_od_ckf.yaml"), ENCODER_SIGMA)
     free = load_config(CONFIGS / "sins_only.yaml")

@@ -100,7 +100,7 @@ def wheel(tmp_path_factory: pytest.TempPathFactory) -> Path:
     root = tmp_path_factory.mktemp("wheel")
     source = root / "source"
     ignore = shutil.ignore_patterns("__pycache__", "*.nbi", "*.nbc")
-    for name in ("fusion", "plugins", "configs"):
+    for name in ("fusion", "configs"):
         shutil.copytree(REPO / name, source / name, ignore=ignore)
     for name in ("pyproject.toml", "README.md"):
         shutil.copy2(REPO / name, source / name)
@@ -121,11 +121,10 @@ def test_the_wheel_holds_the_configs_the_scenarios_and_every_module(wheel: Path)
         assert f"fusion/configs/{p.as_posix()}" in names
     for p in (REPO / "fusion" / "sim" / "scenarios").glob("*.yaml"):
         assert f"fusion/sim/scenarios/{p.name}" in names
-    for package in ("fusion", "plugins"):
-        for p in (REPO / package).rglob("*.py"):
-            assert p.relative_to(REPO).as_posix() in names, f"{p} is not in the wheel"
+    for p in (REPO / "fusion").rglob("*.py"):
+        assert p.relative_to(REPO).as_posix() in names, f"{p} is not in the wheel"
     assert "fusion/py.typed" in names
-    (metadata,) = {n.split("/")[0] for n in names} - {"fusion", "plugins"}
+    (metadata,) = {n.split("/")[0] for n in names} - {"fusion"}  # one top-level package
     assert metadata.endswith(".dist-info")
 
 

@@ -8,10 +8,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from fusion.aiding.position import PositionFixes, PositionOptions
 from fusion.attitude import dcm_from_euler
 from fusion.config import load_config, parse_config
 from fusion.recording import PositionData, Recording
-from plugins.position import PositionFixes, PositionOptions
 from tests.plugin_support import (
     FRAME,
     layout_with,

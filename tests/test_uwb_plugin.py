@@ -23,6 +23,7 @@ from typing import Any
 import numpy as np
 import pytest
 
+from fusion.aiding.uwb import LeastSquaresOptions, UwbOptions, UwbRanges, least_squares_solution
 from fusion.attitude import dcm_from_euler
 from fusion.config import load_config, parse_config
 from fusion.engine import Engine, RunResult
@@ -34,7 +35,6 @@ from fusion.plugin import Measurement, MeasurementContext, PluginError, create_p
 from fusion.recording import Recording, UwbData, read_recording
 from fusion.sim.simulate import simulate
 from fusion.solution import Solution
-from plugins.uwb import LeastSquaresOptions, UwbOptions, UwbRanges, least_squares_solution
 from tests.plugin_support import (
     FRAME,
     group_rms,

@@ -18,6 +18,7 @@ import numpy as np
 import pytest
 
 from fusion import earth
+from fusion.aiding.zupt import Zupt, default_thresholds, detect_stationary, window_samples
 from fusion.attitude import dcm_from_euler
 from fusion.config import FusionConfig, load_config, parse_config
 from fusion.engine import Engine, RunResult
@@ -26,7 +27,6 @@ from fusion.metrics import interpolate_truth
 from fusion.plugin import Measurement, PluginError, create_plugin
 from fusion.recording import ImuSpec, OdometerData, OdometerMeta, Recording, read_recording
 from fusion.sim.simulate import simulate
-from plugins.zupt import Zupt, default_thresholds, detect_stationary, window_samples
 from tests.plugin_support import (
     SEED002_SPEC,
     group_rms,

@@ -17,7 +17,7 @@ and the true ``v^m = [0, s̃ (1 − δk_D), 0]``. The measurement (mode ``odomet
 where the attitude and parameter columns take the vehicle velocity ``v^m = [0, s̄ / (1 + δk̂_D),
 0]`` (``v^n = C_b^n C_m^b v^m``) with s̄ a mean of readings *before* this one: of a 10-s window
 ending 2 s earlier while the speed is steady, of the last second while it changes, zero while
-the machine may stand (:func:`still_readings`; :mod:`plugins.reference_speed` says why). The
+the machine may stand (:func:`still_readings`; :mod:`fusion.aiding.reference_speed` says why). The
 SINS velocity in the attitude columns also carried the cutting vibration that is in z: with
 the encoder's 2–3 mm/s as R, yaw RMS(ε/σ) 2.4 against 2.1 at the reference (``longwall-200m``,
 8 seeds of 300 s; see also ``filter.specific_force_time_constant_s`` in
@@ -61,10 +61,11 @@ skidding wheel (under-reading) is left to the fault monitor.
 
 Zero angular rate at standstill (option ``zero_angular_rate``, mode ``odometer``): while every
 odometer reading of the past ``rest_guard_s`` is a still one the machine stands, and the
-gyro mean since the previous reading is the earth rate plus the bias (:mod:`plugins.zaru`). The
-encoder knows a stop the moment it begins, without the IMU detector's lag; this is the static
-gyro calibration a MEMS alignment starts with, repeated at every stop, and the only thing that
-observes the vertical gyro bias before the heading has drifted on a slow, straight machine.
+gyro mean since the previous reading is the earth rate plus the bias
+(:mod:`fusion.aiding.zaru`). The encoder knows a stop the moment it begins, without the IMU
+detector's lag; this is the static gyro calibration a MEMS alignment starts with, repeated at
+every stop, and the only thing that observes the vertical gyro bias before the heading has
+drifted on a slow, straight machine.
 """
 
 from __future__ import annotations
@@ -78,12 +79,12 @@ import numpy as np
 from numpy.typing import NDArray
 from pydantic import Field, model_validator
 
+from fusion.aiding.reference_speed import ReferenceSpeed, reading_noise
+from fusion.aiding.zaru import ZeroAngularRate
 from fusion.attitude import dcm_from_euler, skew
 from fusion.error_model import ATTITUDE, KNOWN_SIGMAS, VELOCITY, StateBlock
 from fusion.plugin import Measurement, MeasurementContext, Plugin, PluginOptions
 from fusion.recording import Recording
-from plugins.reference_speed import ReferenceSpeed, reading_noise
-from plugins.zaru import ZeroAngularRate
 
 SLIP_PRIOR_SIGMA = 1e-4  # no slip at the start; a jump opens it (fusion.jumps)
 CHI2_1_MEDIAN = 0.4549364  # median of χ²₁
@@ -161,7 +162,7 @@ class OdometerOptions(PluginOptions):
         1.0,
         gt=0,
         description="while the speed changes, the parameter and attitude columns take the mean"
-        " odometer speed of this window before the reading (plugins.reference_speed)",
+        " odometer speed of this window before the reading (fusion.aiding.reference_speed)",
     )
     steady_window_s: float = Field(
         10.0,
@@ -432,9 +433,10 @@ class Odometer(Plugin):
     def _reference_speed(
         self, index: int, scale: NDArray[np.float64], along: NDArray[np.float64]
     ) -> float:
-        """Vehicle speed of the parameter and attitude columns (:mod:`plugins.reference_speed`)
-        with the scale estimates ``scale`` (δk_D and, with slip detection, s) and the travel
-        axis ``along`` in n; zero when the previous reading is a still one."""
+        """Vehicle speed of the parameter and attitude columns
+        (:mod:`fusion.aiding.reference_speed`) with the scale estimates ``scale`` (δk_D and,
+        with slip detection, s) and the travel axis ``along`` in n; zero when the previous
+        reading is a still one."""
         if self.still[max(index - 1, 0)]:
             return 0.0
         slip = float(scale[1]) if scale.size > 1 else 0.0

@@ -61,7 +61,7 @@ running, set it to the measured standstill vibration velocity.
 
 Zero angular rate (ZARU, option ``zero_angular_rate``): at a ZUPT epoch the machine does not
 turn either, so the gyro mean since the previous epoch is the earth rate plus the bias
-(:mod:`plugins.zaru`): every gyro bias, the vertical one included, becomes observable at rest.
+(:mod:`fusion.aiding.zaru`): every gyro bias, the vertical one included, becomes observable at rest.
 With ``zero_velocity: false`` the epoch gives the ZARU without the zero velocity (and the
 motion constraint, when one is configured, at every epoch): for a machine that can creep too
 smoothly for the IMU to tell it from a stop (a shearer hauling at a few m/min without
@@ -107,12 +107,12 @@ from pydantic import Field, field_validator, model_validator
 from scipy.ndimage import median_filter, minimum_filter1d, uniform_filter1d
 from scipy.stats import chi2, norm
 
+from fusion.aiding.odometer import Odometer, OdometerOptions
+from fusion.aiding.zaru import ZeroAngularRate
 from fusion.earth import OMEGA_IE, normal_gravity
 from fusion.error_model import VELOCITY, ImuNoise, StateBlock
 from fusion.plugin import Measurement, MeasurementContext, Plugin, PluginOptions
 from fusion.recording import ImuSpec, Recording
-from plugins.odometer import Odometer, OdometerOptions
-from plugins.zaru import ZeroAngularRate
 
 BIAS_COVERAGE = 0.999
 """Probability with which the threshold band covers the constant IMU biases."""

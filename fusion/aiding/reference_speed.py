@@ -1,7 +1,7 @@
 """The vehicle speed at which the odometer's scale and attitude columns are evaluated.
 
-The odometer's measurement (:mod:`plugins.odometer`) has the columns ``−v`` for the scale error
-δk_D (and the slip s) and ``−C (v^n×)`` for the attitude, a derivative taken at the vehicle's
+The odometer's measurement (:mod:`fusion.aiding.odometer`) has the columns ``−v`` for the scale
+error δk_D (and the slip s) and ``−C (v^n×)`` for the attitude, a derivative taken at the vehicle's
 speed v. Which estimate of v goes there decides whether the filter stays consistent:
 
 * Not this epoch's reading and not the SINS velocity: both carry errors that are also in this

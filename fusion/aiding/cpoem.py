@@ -55,7 +55,7 @@ Measurement
 With ``C̃_b^n = (I − φ×) C_b^n`` the advance direction ``u = C̃_b^n e_x`` (the m-frame is taken as
 the body frame, the seed's ``C̃_b^m = I``) moves as ``u(φ) = u + (u×) φ``. In the local level
 axes of the error states (``R_local`` turns the origin's ENU axes into them, as in
-:mod:`plugins.position`)::
+:mod:`fusion.aiding.position`)::
 
     z₃ = R_local (p̃ − p̂) − d a(u),    H₃ = [0, −d ∂a/∂φ, I, 0, …]   (columns δv, φ, δp, …)
 

@@ -1,1 +1,0 @@
-"""Aiding sources (plugins) for shearer-fusion."""
