@@ -225,6 +225,17 @@ def _holds(h: NDArray[np.float64], layout: StateLayout) -> bool:
     return False
 
 
+@dataclass
+class _OutputRows:
+    """What the engine keeps at each output epoch (:meth:`Engine._output_epoch`)."""
+
+    t: RowBuffer
+    nav: RowBuffer
+    position_covariance: RowBuffer
+    recorder: StateRecorder | None
+    observed: ObservabilityTracker
+
+
 class Engine:
     """A configured filter over one recording.
 
@@ -343,13 +354,9 @@ class Engine:
         release_freed_memory()  # the schedule's sort temporaries
         logs = {p.name: InnovationLog() for p in self.plugins}
         out_t, out_nav, out_cov = RowBuffer(), RowBuffer((NAV_SIZE,)), RowBuffer((3, 3))
-        out_t.append(t0)
-        out_nav.append(sins.nav)
-        out_cov.append(bank.position_covariance())
-        observed.sample(t0, bank.estimate()[1])
         recorder = StateRecorder(self.layout) if self.config.output.states else None
-        if recorder is not None:
-            recorder.record(*self._estimate(bank, sins))
+        rows = _OutputRows(out_t, out_nav, out_cov, recorder, observed)
+        self._output_epoch(rows, bank, sins, t0)
         smoother = self._smoother(bank)
         if smoother is not None:
             state = bank.smoothing_state()
@@ -413,13 +420,7 @@ class Engine:
                     smoother, bank, te, phi, prior, posterior, dx, sins.nav if is_output else None
                 )
             if is_output:
-                out_t.append(te)
-                out_nav.append(sins.nav)
-                out_cov.append(bank.position_covariance())
-                if recorder is not None:
-                    recorder.record(*self._estimate(bank, sins))
-                if observed.due(te):
-                    observed.sample(te, bank.estimate()[1])
+                self._output_epoch(rows, bank, sins, te)
             if progress is not None and (i // report_every) != (j // report_every):
                 progress(j / n_events)
             i = j
@@ -446,6 +447,24 @@ class Engine:
             observability=observed.report(final_covariance),
             states=recorder.history(solution, self.frame) if recorder is not None else None,
         )
+
+    def _output_epoch(self, rows: _OutputRows, bank: FilterBank, sins: Strapdown, t: float) -> None:
+        """One output row: time, nominal state and position covariance, and where they are
+        kept, the state history and the observability sample, from one estimate of the bank
+        (a federated estimate fuses every local)."""
+        rows.t.append(t)
+        rows.nav.append(sins.nav)
+        sampled = rows.observed.due(t)
+        if rows.recorder is None and not sampled:
+            rows.position_covariance.append(bank.position_covariance())
+            return
+        estimate, covariance = self._estimate(bank, sins)
+        position = self.layout.slice(POSITION)
+        rows.position_covariance.append(covariance[position, position])
+        if rows.recorder is not None:
+            rows.recorder.record(estimate, covariance)
+        if sampled:
+            rows.observed.sample(t, covariance)
 
     def _estimate(
         self, bank: FilterBank, sins: Strapdown
