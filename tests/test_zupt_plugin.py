@@ -357,10 +357,10 @@ def _with_options(config: FusionConfig, **options: Any) -> FusionConfig:
 
 
 def test_zupts_fall_on_true_standstill(short_recording: Recording) -> None:
-    """sins_mc_zupt: ZUPT rows (3) while the machine stands and constraint rows (2) while it
-    moves. Offline, every ZUPT epoch is a true standstill (the guard covers the detector's blind
-    time); in real time the gate rejects those that come while the machine starts to move, and
-    the accepted ones see at most a crawl."""
+    """sins_mc_zupt: ZUPT and ZARU rows (3 + 3) while the machine stands and constraint rows (2)
+    while it moves. Offline, every ZUPT epoch is a true standstill (the guard covers the
+    detector's blind time); in real time the gate rejects those that come while the machine
+    starts to move, and the accepted ones see at most a crawl."""
     rec = short_recording
     assert rec.truth is not None
     config = load_config(CONFIGS / "sins_mc_zupt.yaml")
@@ -369,7 +369,7 @@ def test_zupts_fall_on_true_standstill(short_recording: Recording) -> None:
         log = result.innovations["zupt"]
         dof, accepted, t = log.dof, log.accepted, log.t
         speed = np.linalg.norm(interpolate_truth(rec.truth, t)[2], axis=1)
-        zupt = dof == 3
+        zupt = dof == 6
         assert zupt.sum() > 300 and (dof == 2).sum() > 300
         print(f"causal={causal}: {zupt.sum()} ZUPTs, {np.sum(zupt & ~accepted)} rejected")
         if causal:
