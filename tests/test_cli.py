@@ -36,6 +36,10 @@ def _fusion(*args: str, **kwargs: object) -> subprocess.Popen[str]:
     )
 
 
+def _sigint_default() -> None:
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
 def _one_error_line(err: str, *needles: str) -> None:
     """stderr is a single ``error:`` line, no traceback, naming every needle."""
     lines = err.strip().splitlines()
@@ -239,7 +243,9 @@ def test_a_reader_that_goes_away_is_not_an_error() -> None:
 def test_ctrl_c_stops_with_a_message_and_its_own_status(tmp_path: Path) -> None:
     """SIGINT during the 8-hour shift's simulation (≈ 80 s): status 130, one line."""
     rec = tmp_path / "rec"
-    proc = _fusion("simulate", "longwall-shift", str(rec))
+    # A shell without job control starts background jobs with SIGINT ignored, and a child
+    # inherits that (`.ci/run &` in a script): the child gets the default disposition here.
+    proc = _fusion("simulate", "longwall-shift", str(rec), preexec_fn=_sigint_default)
     deadline = time.monotonic() + 60.0
     while not any(tmp_path.glob(".rec.staging-*")) and time.monotonic() < deadline:  # begun
         time.sleep(0.1)

@@ -321,8 +321,15 @@ def test_ctrl_c_while_writing_says_what_was_kept(
         signal.raise_signal(signal.SIGINT)
 
     monkeypatch.setattr(fusion.outputs, "write_solution", write_then_ctrl_c)
-    capsys.readouterr()
-    assert _fusion_run(inputs, out, "--force") == EXIT_INTERRUPTED
+    # Python's own handler even where the test runner inherited SIGINT ignored (a background
+    # job of a shell without job control).
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
+    try:
+        capsys.readouterr()
+        status = _fusion_run(inputs, out, "--force")
+    finally:
+        signal.signal(signal.SIGINT, previous)
+    assert status == EXIT_INTERRUPTED
     err = capsys.readouterr().err
     kept = "still holds the earlier result" if has_earlier else "unchanged (no earlier result)"
     assert err == f"fusion run: interrupted: nothing written; {out} {kept}\n"
