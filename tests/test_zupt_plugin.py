@@ -18,7 +18,13 @@ import numpy as np
 import pytest
 
 from fusion import earth
-from fusion.aiding.zupt import Zupt, default_thresholds, detect_stationary, window_samples
+from fusion.aiding.zupt import (
+    StationaryThresholds,
+    Zupt,
+    default_thresholds,
+    detect_stationary,
+    window_samples,
+)
 from fusion.attitude import dcm_from_euler
 from fusion.config import FusionConfig, load_config, parse_config
 from fusion.engine import Engine, RunResult
@@ -354,6 +360,52 @@ def _with_options(config: FusionConfig, **options: Any) -> FusionConfig:
     data = config.model_dump()
     data["plugins"] = [{**data["plugins"][0], **options}]
     return parse_config(data)
+
+
+def _gait(swing_dps: float, stance_fraction: float) -> tuple[np.ndarray, ...]:
+    """Ten 1-s strides at 200 Hz: a 0.4-s stance whose foot rolls at ``stance_fraction`` of
+    the swing's peak rate, then a 0.6-s swing at ``swing_dps`` × |sin|; gravity along z."""
+    rate = 200.0
+    t = np.arange(1.0, 2001.0) / rate
+    phase = t % 1.0
+    stance = phase < 0.4
+    swing = np.abs(np.sin(np.pi * (phase - 0.4) / 0.6))
+    rng = np.random.default_rng(7)
+    speed = np.where(stance, stance_fraction * (1.0 + 0.2 * rng.random(t.size)), swing)
+    gyro = np.zeros((t.size, 3))
+    gyro[:, 0] = np.radians(swing_dps) * speed
+    accel = np.zeros((t.size, 3))
+    accel[:, 2] = G0 + 0.05 * rng.standard_normal(t.size)
+    return t, gyro, accel, stance, ~stance & (swing > 0.3)
+
+
+@pytest.mark.parametrize("swing_dps", [100.0, 600.0])
+@pytest.mark.parametrize("causal", [False, True])
+def test_gait_adaptive_bounds_follow_the_gait(swing_dps: float, causal: bool) -> None:
+    """A stance that rolls at 6 % of the swing's peak rate (6 °/s on a slow gait, 36 °/s on a
+    run): the gait-adaptive bounds take nearly every stance sample of both and no sample of
+    the swing's core; the fixed 10 °/s floor alone misses the run's stances entirely."""
+    t, gyro, accel, stance, swing = _gait(swing_dps, 0.06)
+    fixed = StationaryThresholds(G0 - 0.5, G0 + 0.5, math.radians(10.0))
+    adaptive = replace(fixed, gait_fraction=0.1, gait_window_s=3.0)
+    labels = detect_stationary(t, gyro, accel, adaptive, 0.025, causal)
+    settled = t > 3.0  # a trailing window holds a stride from here on
+    assert labels[stance & settled].mean() > 0.95
+    assert not labels[swing].any()
+    if swing_dps > 100.0:
+        assert not detect_stationary(t, gyro, accel, fixed, 0.025, causal)[stance].any()
+
+
+def test_causal_gait_bounds_use_no_later_sample() -> None:
+    """In real time a label depends on the samples up to it: a run that starts later changes
+    no earlier label."""
+    t, gyro, accel, *_ = _gait(100.0, 0.06)
+    later = gyro.copy()
+    later[1200:] *= 6.0  # the walk turns into a run at 6 s
+    th = StationaryThresholds(G0 - 0.5, G0 + 0.5, math.radians(10.0), gait_fraction=0.1)
+    walk = detect_stationary(t, gyro, accel, th, 0.025, causal=True)
+    run = detect_stationary(t, later, accel, th, 0.025, causal=True)
+    assert np.array_equal(walk[:1200], run[:1200])
 
 
 def test_zupts_fall_on_true_standstill(short_recording: Recording) -> None:
