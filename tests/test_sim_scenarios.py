@@ -19,6 +19,7 @@ PRESETS = {
     "seed000-carrier",
     "seed002-rectangle",
     "seed002-rectangle-718",
+    "seed002-rectangle-calibrated",
     "seed003-brokenline",
     "seed003-brokenline-maginterf",
     "seed004-face-end",
