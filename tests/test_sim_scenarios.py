@@ -22,6 +22,7 @@ PRESETS = {
     "seed002-rectangle-calibrated",
     "seed003-brokenline",
     "seed003-brokenline-maginterf",
+    "seed003-brokenline-calibrated",
     "seed004-face-end",
 }
 
