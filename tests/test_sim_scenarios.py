@@ -24,6 +24,7 @@ PRESETS = {
     "seed003-brokenline-maginterf",
     "seed003-brokenline-calibrated",
     "seed004-face-end",
+    "seed004-face-end-calibrated",
 }
 
 
