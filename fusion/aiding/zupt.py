@@ -279,12 +279,10 @@ def gait_bounds(
     samples (trailing when causal, else centred), α = ``thresholds.gait_fraction``.
 
     A foot in stance is not still: it rolls from heel to toe, and the harder the gait the more
-    it moves. Over the 13 PyShoe VICON trials the optimal stance labels' 90th percentile of
-    ‖ω‖ is 0.04–0.19 of the swing's (walking 13–40 °/s against 330–440 °/s, running 31–86
-    against 560–580, stairs 5–6 against 66–109), so no fixed bound serves both a run and a
-    staircase: 30 °/s missed a third of a run's stances (the track 23 m off) and took a
-    stair's swings for stances. The window's 90th percentile is the swing's level whenever
-    the window holds a stride."""
+    it moves, in proportion to the swing (a run's stance turns faster than a staircase's
+    swing), so no fixed bound serves both. The window's 90th percentile is the swing's level
+    whenever the window holds a stride. Measured on PyShoe's trials:
+    docs/design/2026-11-27-standstill-zaru.md."""
     assert thresholds.gait_fraction is not None
     origin = (size - 1) // 2 if causal else 0
     level = percentile_filter(x, 90, size=size, origin=origin, mode="nearest")
