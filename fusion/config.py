@@ -85,6 +85,14 @@ class ImuTuning(_Strict):
     accel_bias_instability_mg: float = _within(
         0.0, 0, 100, "accelerometer bias Gauss–Markov σ, mg; a consumer MEMS part's ≈ 0.1–1"
     )
+    bias_instability_fraction: float | None = _within(
+        None,
+        0,
+        1,
+        "in-run bias Gauss–Markov σ as a fraction of the turn-on bias (gyro and accelerometer"
+        " alike), for an IMU known only by its turn-on figures; takes the place of"
+        " gyro_bias_instability_deg_h and accel_bias_instability_mg",
+    )
     bias_correlation_time_s: float = _within(
         3600.0,
         1,
@@ -104,6 +112,16 @@ class ImuTuning(_Strict):
         "multiplies ARW and VRW (seed 000 App. A inflates by 5); two decades either way of the"
         " datasheet",
     )
+
+    @model_validator(mode="after")
+    def _one_instability(self) -> ImuTuning:
+        absolute = self.gyro_bias_instability_deg_h > 0 or self.accel_bias_instability_mg > 0
+        if self.bias_instability_fraction is not None and absolute:
+            raise ValueError(
+                "imu.bias_instability_fraction replaces imu.gyro_bias_instability_deg_h and"
+                " imu.accel_bias_instability_mg: give the fraction or the figures, not both"
+            )
+        return self
 
 
 class FaultDetectionOptions(_Strict):

@@ -123,7 +123,9 @@ class RunResult:
 
 
 def resolve_imu_noise(tuning: ImuTuning, spec: ImuSpec | None) -> ImuNoise:
-    """IMU noise from the configuration, falling back to the recording's datasheet figures."""
+    """IMU noise from the configuration, falling back to the recording's datasheet figures; an
+    ``imu.bias_instability_fraction`` scales the turn-on biases so resolved into the in-run
+    instability."""
     figures = {}
     missing = []
     for key in ("gyro_arw_deg_rth", "accel_vrw_mg_rthz", "gyro_bias_deg_h", "accel_bias_mg"):
@@ -141,13 +143,18 @@ def resolve_imu_noise(tuning: ImuTuning, spec: ImuSpec | None) -> ImuNoise:
                 for k in missing
             )
         )
+    gyro_instability = tuning.gyro_bias_instability_deg_h
+    accel_instability = tuning.accel_bias_instability_mg
+    if tuning.bias_instability_fraction is not None:
+        gyro_instability = tuning.bias_instability_fraction * figures["gyro_bias_deg_h"]
+        accel_instability = tuning.bias_instability_fraction * figures["accel_bias_mg"]
     noise = ImuNoise.from_datasheet(
         gyro_arw_deg_rth=figures["gyro_arw_deg_rth"] * tuning.noise_scale,
         accel_vrw_mg_rthz=figures["accel_vrw_mg_rthz"] * tuning.noise_scale,
         gyro_bias_deg_h=figures["gyro_bias_deg_h"],
         accel_bias_mg=figures["accel_bias_mg"],
-        gyro_bias_instability_deg_h=tuning.gyro_bias_instability_deg_h,
-        accel_bias_instability_mg=tuning.accel_bias_instability_mg,
+        gyro_bias_instability_deg_h=gyro_instability,
+        accel_bias_instability_mg=accel_instability,
         bias_correlation_time_s=tuning.bias_correlation_time_s,
         bias_random_walk=tuning.bias_model == "random_walk",
     )

@@ -221,6 +221,29 @@ def test_missing_imu_figures_are_an_error_naming_both_places() -> None:
         Engine(parse_config({"name": "free"}), bare)
 
 
+def test_bias_instability_fraction_follows_the_turn_on_bias_of_either_place() -> None:
+    from fusion.config import ImuTuning
+    from fusion.engine import resolve_imu_noise
+    from fusion.recording import ImuSpec
+
+    spec = ImuSpec(
+        gyro_bias_deg_h=720.0, gyro_arw_deg_rth=0.6, accel_bias_mg=3.0, accel_vrw_mg_rthz=0.08
+    )
+    tuning = ImuTuning(bias_instability_fraction=0.02, bias_correlation_time_s=100.0)
+    noise = resolve_imu_noise(tuning, spec)
+    assert noise.gyro_bias_instability == pytest.approx(0.02 * noise.gyro_bias)
+    assert noise.accel_bias_instability == pytest.approx(0.02 * noise.accel_bias)
+    own = resolve_imu_noise(tuning.model_copy(update={"gyro_bias_deg_h": 3.0}), spec)
+    assert own.gyro_bias_instability == pytest.approx(0.02 * 3.0 * np.pi / 180.0 / 3600.0)
+    with pytest.raises(ConfigError, match=r"imu\.bias_instability_fraction replaces"):
+        parse_config(
+            {
+                "name": "x",
+                "imu": {"bias_instability_fraction": 0.02, "gyro_bias_instability_deg_h": 10.0},
+            }
+        )
+
+
 def test_unknown_plugin_and_bad_plugin_option_are_named() -> None:
     from fusion.plugin import PluginError
 
