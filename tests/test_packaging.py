@@ -30,8 +30,8 @@ def test_configs_are_found_by_name_from_any_directory(
     packaged = PACKAGED_CONFIGS / "sins_od_cpoem.yaml"
     for given in ("sins_od_cpoem", "sins_od_cpoem.yaml", "configs/sins_od_cpoem.yaml"):
         assert find_config(given) == packaged
-    # its imu.file (configs/imu/mti-100.yaml) is read beside it
-    assert load_config(find_config("sins_od_cpoem")).imu.gyro_bias_instability_deg_h == 16.2
+    # its imu.file (configs/imu/spec-relative.yaml) is read beside it
+    assert load_config(find_config("sins_od_cpoem")).imu.bias_instability_fraction == 0.0225
 
 
 def test_a_path_as_given_then_the_working_directory_then_the_packaged_configs(
