@@ -108,6 +108,24 @@ def test_zero_angular_rate_h_and_bias_estimate() -> None:
     assert abs(np.degrees(result.solution.attitude[-1, 2])) < 0.05
 
 
+def test_zero_angular_rate_on_an_epoch_grid_as_fine_as_the_imu_is_finite() -> None:
+    """At the IMU's own rate an epoch's interval (t − 1/rate, t] can hold no sample after
+    rounding: the ZARU then takes the last sample instead of a NaN mean (which ran a
+    foot-mounted recording to NaN quaternions)."""
+    rec = static_recording()
+    plugin = Zupt("zupt", Zupt.Options(zero_angular_rate=True, update_rate_hz=100.0), rec)
+    layout = layout_with(plugin.state_blocks())
+    ctx = perturbed_context(layout, np.zeros(layout.dim), position_enu=np.zeros(3))
+    t = float(rec.imu.t[40])
+    for t_start in (t - 0.01, t - 1e-9, t):  # one sample, one after rounding, none
+        m = plugin.zero_rate.measure(t_start, t, ctx)  # type: ignore[union-attr]
+        assert np.isfinite(m.z).all() and np.isfinite(m.R).all()
+    np.testing.assert_allclose(
+        plugin.zero_rate.measure(t, t, ctx).z,  # type: ignore[union-attr]
+        plugin.zero_rate.measure(t - 0.005, t, ctx).z,  # type: ignore[union-attr]
+    )
+
+
 def test_motion_constraint_while_moving() -> None:
     """Eq. 18: a moving epoch gives the odometer plugin's motion constraint (lateral and
     vertical velocity in the machine frame, over the mounting angles this plugin then owns)."""

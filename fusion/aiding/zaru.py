@@ -52,12 +52,13 @@ class ZeroAngularRate:
         self.floor = math.radians(floor_dps)
 
     def measure(self, t_start: float, t_end: float, ctx: MeasurementContext) -> Measurement:
-        """The ZARU from the IMU samples in ``(t_start, t_end]`` (module docstring)."""
-        samples = slice(
-            np.searchsorted(self.imu.t, t_start, side="right"),
-            np.searchsorted(self.imu.t, t_end, side="right"),
-        )
-        count = max(int(samples.stop - samples.start), 1)
+        """The ZARU from the IMU samples in ``(t_start, t_end]`` (module docstring); from the
+        last sample at or before ``t_end`` when the interval holds none (an epoch grid as fine
+        as the IMU's)."""
+        stop = int(np.searchsorted(self.imu.t, t_end, side="right"))
+        start = min(int(np.searchsorted(self.imu.t, t_start, side="right")), stop - 1)
+        samples = slice(max(start, 0), stop)
+        count = max(samples.stop - samples.start, 1)
         c_n_b = ctx.c_b_n.T
         w_ie = OMEGA_IE * np.array([0.0, np.cos(ctx.lat), np.sin(ctx.lat)])
         z = self.imu.gyro[samples].mean(axis=0) - ctx.gyro_bias - c_n_b @ w_ie
