@@ -59,7 +59,7 @@ from fusion.kalman import KalmanFilter
 from fusion.lock import LOST_LOCK, REACQUIRE, LockMonitor
 from fusion.memory import release_freed_memory
 from fusion.observability import Observability, ObservabilityTracker
-from fusion.plugin import MeasurementContext, Plugin, create_plugin
+from fusion.plugin import MeasurementContext, Plugin, PluginError, create_plugin
 from fusion.recording import ImuSpec, Recording, check_recording
 from fusion.rows import RowBuffer
 from fusion.screening import ScreeningReport, screen_recording
@@ -630,6 +630,12 @@ class Engine:
         m = plugin.measure(index, ctx)
         if m is None:
             return False
+        if not (np.isfinite(m.z).all() and np.isfinite(m.H).all() and np.isfinite(m.R).all()):
+            raise PluginError(
+                f"plugin {plugin.name!r} returned a measurement with a NaN or an infinity in z,"
+                f" H or R at t = {t:.3f} s: a fault of the plugin (the reader passes only finite"
+                " readings)"
+            )
         if self.config.filter.observability_constrained and plugin.turn_invariant:
             m = replace(m, H=constrain_rows(m.H, self._turn(layout, sins), layout))
         correlated = m.correlated

@@ -126,6 +126,21 @@ def test_zero_angular_rate_on_an_epoch_grid_as_fine_as_the_imu_is_finite() -> No
     )
 
 
+def test_a_non_finite_measurement_is_a_plugin_error_naming_it(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    measure = Zupt.measure
+
+    def broken(self: Zupt, index: int, ctx: Any) -> Measurement | None:
+        m = measure(self, index, ctx)
+        return None if m is None else replace(m, z=np.full_like(m.z, np.nan))
+
+    monkeypatch.setattr(Zupt, "measure", broken)
+    config = parse_config({"name": "z", "plugins": [{"type": "zupt"}]})
+    with pytest.raises(PluginError, match=r"plugin 'zupt' returned a measurement with a NaN"):
+        Engine(config, static_recording()).run()
+
+
 def test_motion_constraint_while_moving() -> None:
     """Eq. 18: a moving epoch gives the odometer plugin's motion constraint (lateral and
     vertical velocity in the machine frame, over the mounting angles this plugin then owns)."""
