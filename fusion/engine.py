@@ -643,7 +643,11 @@ class Engine:
             offset = self.stored_error_offsets[src]
             correlated = replace(correlated, columns=correlated.columns + offset)
         signature = jumps.innovation_signature(bank, src, m.H) if jumps is not None else None
-        res = kf.update(m.z, m.H, m.R, self.gates[src], shared, correlated, m.consider)
+        try:
+            res = kf.update(m.z, m.H, m.R, self.gates[src], shared, correlated, m.consider)
+        except np.linalg.LinAlgError:  # S not positive definite: the update is not usable
+            logs[plugin.name].record(t, math.inf, len(m.z), False, m.suspect)
+            return False
         bank.record(src, t, res, m.suspect)
         if res.accepted and self._watched and _holds(m.H, layout):
             self._last_held[src] = t
