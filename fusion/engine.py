@@ -339,6 +339,7 @@ class Engine:
         ]
         self._last_held = [-math.inf] * len(self.plugins)
         self._watched = any(lock is not None for lock in self._locks)  # else _alone is unasked
+        self._needs_holds = self._watched or cfg.architecture == "federated"  # FederatedFilter
         self._turn_prior = self._turn(self.layout, sins)
         states = jump_states(self.layout)
         jumps = (
@@ -648,8 +649,9 @@ class Engine:
         except np.linalg.LinAlgError:  # S not positive definite: the update is not usable
             logs[plugin.name].record(t, math.inf, len(m.z), False, m.suspect)
             return False
-        bank.record(src, t, res, m.suspect)
-        if res.accepted and self._watched and _holds(m.H, layout):
+        holds = res.accepted and self._needs_holds and _holds(m.H, layout)
+        bank.record(src, t, res, m.suspect, holds)
+        if holds:
             self._last_held[src] = t
         lock = self._locks[src]
         if lock is not None and lock.observe(t, res.accepted) and self._alone(src, t):

@@ -83,16 +83,20 @@ from __future__ import annotations
 
 import functools
 from collections.abc import Iterator, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 from numpy.typing import NDArray
 
 from fusion.config import FederatedOptions
 from fusion.error_model import POSITION, StateLayout
-from fusion.fault_detection import READMIT, FaultEvent, FaultMonitor
+from fusion.fault_detection import ISOLATE, READMIT, FaultEvent, FaultMonitor
 from fusion.filter_bank import COMMON
 from fusion.kalman import KalmanFilter, UpdateResult, cholesky_solve
+
+LAST_HOLDER = "kept in the fusion while no other local holds the SINS"
+"""Appended to an isolation's reason when the local is the only one that holds the SINS: it
+stays a member (:meth:`FederatedFilter._members`) until another local holds it."""
 
 N_COMMON = 15
 OWN = slice(N_COMMON, None)
@@ -109,6 +113,8 @@ class LocalFilter:
     beta: float
     monitor: FaultMonitor
     reinitialize: bool = False
+    last_held: float = -np.inf
+    """Time of the local's last update that held the SINS (:meth:`FederatedFilter.record`)."""
     block: tuple[NDArray[np.intp], ...] = field(init=False, repr=False)
 
     def __post_init__(self) -> None:
@@ -305,6 +311,7 @@ class FederatedFilter:
             else None
         )
         self._last_fusion = -np.inf
+        self._now = -np.inf
         self._position = layout.slice(POSITION)
         self._fused: tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]] | None = (
             None
@@ -333,15 +340,37 @@ class FederatedFilter:
             return None
         return self.locals[self._local_of_plugin[plugin]].unit_share_covariance()
 
-    def record(self, plugin: int, t: float, result: UpdateResult, suspect: bool) -> None:
-        """Feed the local's fault monitor; note isolation and re-admission events."""
+    def record(
+        self, plugin: int, t: float, result: UpdateResult, suspect: bool, holds: bool = False
+    ) -> None:
+        """Feed the local's fault monitor; note isolation and re-admission events. ``holds``:
+        the update was accepted and determines the velocity or the position (the engine's
+        ``_holds``), which keeps the local a holder (:meth:`_members`) for a χ² window."""
         self._fused = None  # the local has just been updated
+        self._now = t
         f = self.locals[self._local_of_plugin[plugin]]
+        if holds:
+            f.last_held = t
         source = self._plugin_names[plugin]
         event = f.monitor.observe(t, result.nis, result.dof, suspect, source, result.whitened)
         if event is not None:
+            if event.action == ISOLATE and self._last_holder(f):
+                event = replace(event, reason=f"{event.reason}; {LAST_HOLDER}")
             self.faults.append(event)
             f.reinitialize = event.action == READMIT
+
+    def _holding(self, f: LocalFilter) -> bool:
+        """Whether local ``f`` had an update that holds the SINS within the last χ² window."""
+        return f.last_held >= self._now - self.options.fault_detection.window_s
+
+    def _last_holder(self, f: LocalFilter) -> bool:
+        """Whether ``f`` holds the SINS and no other healthy local does: isolating it would
+        leave a MEMS SINS to coast, which drifts further than any one sensor's fault pulls."""
+        return self._holding(f) and not any(
+            self._holding(g) and not g.monitor.isolated and not g.reinitialize
+            for g in self.locals
+            if g is not f
+        )
 
     def in_fusion(self, plugin: int) -> bool:
         """Whether the plugin's local is a member of the fusion (not isolated)."""
@@ -426,6 +455,12 @@ class FederatedFilter:
 
     def _members(self) -> list[LocalFilter]:
         healthy = [f for f in self.locals if not f.monitor.isolated and not f.reinitialize]
+        if not any(self._holding(f) for f in healthy):  # the isolated holders stay in
+            healthy += [
+                f
+                for f in self.locals
+                if f.monitor.isolated and self._holding(f) and not f.reinitialize
+            ]
         return healthy or [f for f in self.locals if not f.reinitialize] or self.locals
 
     def _global(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:

@@ -43,8 +43,11 @@ class FilterBank(Protocol):
         """The covariance a plugin's measurement is judged against (its context, gate and test
         statistic) when it is not its filter's own ``P``; ``None`` otherwise."""
 
-    def record(self, plugin: int, t: float, result: UpdateResult, suspect: bool) -> None:
-        """Note the outcome of one update of plugin ``plugin`` (fault monitoring)."""
+    def record(
+        self, plugin: int, t: float, result: UpdateResult, suspect: bool, holds: bool = False
+    ) -> None:
+        """Note the outcome of one update of plugin ``plugin`` (fault monitoring); ``holds``:
+        it was accepted and determines the velocity or the position."""
 
     def in_fusion(self, plugin: int) -> bool:
         """Whether plugin ``plugin``'s updates reach the fused estimate now."""
@@ -125,7 +128,9 @@ class CentralizedFilter:
         """The filter's own ``P`` serves every plugin."""
         return None
 
-    def record(self, plugin: int, t: float, result: UpdateResult, suspect: bool) -> None:
+    def record(
+        self, plugin: int, t: float, result: UpdateResult, suspect: bool, holds: bool = False
+    ) -> None:
         """Nothing to monitor: gating (and jump detection) are the CKF's defences."""
 
     def in_fusion(self, plugin: int) -> bool:

@@ -18,9 +18,9 @@ from fusion.encoder import combine_readings
 from fusion.engine import Engine
 from fusion.error_model import ImuNoise, StateBlock, StateLayout, common_blocks
 from fusion.fault_detection import ISOLATE, READMIT, FaultMonitor
-from fusion.federated import FederatedFilter
+from fusion.federated import LAST_HOLDER, FederatedFilter
 from fusion.filter_bank import CentralizedFilter, FilterBank
-from fusion.kalman import CorrelatedNoise
+from fusion.kalman import CorrelatedNoise, UpdateResult
 from fusion.plugin import MeasurementContext, StoredEstimate
 from fusion.recording import read_recording
 from fusion.sim.simulate import simulate
@@ -489,3 +489,31 @@ def test_standalone_architecture_needs_exactly_one_plugin() -> None:
     with pytest.raises(ConfigError, match="exactly one plugin"):
         parse_config({**base, "plugins": [{"type": "uwb"}, {"type": "odometer"}]})
     assert parse_config({**base, "plugins": [{"type": "uwb"}]}).filter.architecture == "standalone"
+
+
+def _result(nis: float) -> UpdateResult:
+    w = np.array([np.sqrt(nis)])
+    return UpdateResult(True, w, w, nis, None, np.eye(1))
+
+
+def test_the_only_local_that_holds_the_sins_is_kept_in_the_fusion_while_it_is_the_only_one() -> (
+    None
+):
+    """A local failing its χ² test is isolated, but while no other healthy local holds the SINS
+    (velocity or position) it stays a member: a MEMS SINS left to coast drifts further than a
+    sensor's fault pulls (harsh random worlds: the odometer local of sins_od_mag_afkf isolated
+    at a degraded IMU's static start, 24 m of horizontal RMS against the CKF's 1.4 m). Once
+    another local holds it, the isolation takes effect."""
+    options = FederatedOptions(fault_detection=FaultDetectionOptions(window_s=5.0, hold_s=60.0))
+    fed = FederatedFilter(_layout(), [[], []], ["kinematic", "magnetic"], options, ["odo", "mag"])
+    events = []
+    for t in np.arange(0.0, 30.0, 0.1):
+        nis = 400.0 if t >= 20.0 else 1.0
+        fed.record(0, t, _result(nis), False, holds=True)
+        fed.record(1, t, _result(1.0), False, holds=False)
+        events += fed.faults[len(events) :]
+    assert [e.action for e in events] == [ISOLATE]
+    assert LAST_HOLDER in events[0].reason
+    assert fed.in_fusion(0) and fed.in_fusion(1)
+    fed.record(1, 30.0, _result(1.0), False, holds=True)  # the other local now holds the SINS
+    assert not fed.in_fusion(0) and fed.in_fusion(1)
