@@ -97,16 +97,19 @@ filter they are compared with, to rerun after a change of the fault detection.""
 
 
 def robustness_tasks(
-    runs: int, overrides: tuple[str, ...], configs: Sequence[str] | None = None
+    runs: int,
+    overrides: tuple[str, ...],
+    configs: Sequence[str] | None = None,
+    family: str = "longwall-random",
 ) -> list[Task]:
-    """The worlds ``longwall-random`` 0 … runs−1, each configuration (default: every one) in a
-    child process."""
+    """The worlds ``family`` 0 … runs−1, each configuration (default: every one) in a child
+    process."""
     methods = tuple(Method(c, c) for c in (configs or robustness_configs()))
     return [
         Task(
             suite="robustness",
             group="worlds",
-            scenario="longwall-random",
+            scenario=family,
             seed=seed,
             methods=methods,
             scenario_overrides=overrides,
@@ -192,6 +195,21 @@ def federated_tasks(runs: int, overrides: tuple[str, ...]) -> list[Task]:
 def federated_tables() -> list[TableSpec]:
     """:func:`robustness_tables` for :data:`FEDERATED_CONFIGS`."""
     return _table(FEDERATED_CONFIGS, "Federated filters on random worlds (longwall-random)")
+
+
+HARSH_CONFIGS = ("full_afkf", "full_afkf_rts", "full_ckf", "sins_od_mag_afkf", "sins_od_mag_ckf")
+"""``robustness-harsh``: the federated filters and their centralized counterparts on worlds with a
+degraded IMU (worse than its datasheet) and injected faults, where isolation decisions matter."""
+
+
+def harsh_tasks(runs: int, overrides: tuple[str, ...]) -> list[Task]:
+    """:func:`robustness_tasks` for :data:`HARSH_CONFIGS` on ``longwall-random-harsh``."""
+    return robustness_tasks(runs, overrides, HARSH_CONFIGS, "longwall-random-harsh")
+
+
+def harsh_tables() -> list[TableSpec]:
+    """:func:`robustness_tables` for :data:`HARSH_CONFIGS`."""
+    return _table(HARSH_CONFIGS, "Federated and centralized filters on harsh random worlds")
 
 
 def smoke_tables() -> list[TableSpec]:

@@ -34,6 +34,8 @@ from benchmarks.faults import FAULT_KINDS
 from benchmarks.robustness import (
     federated_tables,
     federated_tasks,
+    harsh_tables,
+    harsh_tasks,
     ranges_preamble,
     robustness_tables,
     robustness_tasks,
@@ -625,6 +627,14 @@ SUITES: dict[str, Suite] = {
             20,
             federated_tasks,
             federated_tables,
+            in_results=False,
+        ),
+        Suite(
+            "robustness-harsh",
+            "the federated filters and their CKFs on harsh randomized worlds",
+            20,
+            harsh_tasks,
+            harsh_tables,
             in_results=False,
         ),
         Suite(
