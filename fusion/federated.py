@@ -76,7 +76,10 @@ filter on its own instead was dragged by the fault it had been isolated for (6.5
 against that drifted estimate of its own: re-admission waited for it to re-converge. In
 ``no_reset`` mode an isolated local is only re-referenced and re-initialized from the global
 estimate on re-admission. If every local is isolated the fusion uses them all (there is
-nothing better to feed back).
+nothing better to feed back). A local whose updates hold the SINS (fix its velocity or position)
+stays a member while isolated as long as no healthy local holds it (:data:`LAST_HOLDER`): a MEMS
+SINS left to coast drifts further than any one sensor's fault pulls (harsh random worlds,
+docs/design/2026-11-27-harsh-worlds.md).
 """
 
 from __future__ import annotations
