@@ -119,6 +119,9 @@ class StateBlock:
     leaves_rest
         +1 or −1: the only direction in which the state leaves ``rest`` (a slipping wheel turns
         more than the machine travels, so its slip ratio only rises from 0); 0: either.
+    bound
+        The largest magnitude the state can physically reach: a jump that would take it beyond
+        is not taken in (:mod:`fusion.jumps`). ``None``: unbounded.
     unit
         The unit users read the state in, a key of :data:`STATE_UNITS` (``"deg_h"`` for a gyro
         bias held in rad/s); ``""``: its own unit, unnamed.
@@ -132,6 +135,7 @@ class StateBlock:
     may_jump: bool = False
     rest: float | None = None
     leaves_rest: int = 0
+    bound: float | None = None
     unit: str = ""
 
     def __post_init__(self) -> None:

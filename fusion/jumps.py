@@ -88,6 +88,7 @@ class JumpState:
     rest: float | None = None
     leaves_rest: int = 0
     block: str = ""
+    bound: float | None = None
 
 
 def jump_states(layout: StateLayout) -> list[JumpState]:
@@ -98,7 +99,11 @@ def jump_states(layout: StateLayout) -> list[JumpState]:
             start = layout.slice(block.name).start
             for k, label in enumerate(block.labels):
                 name = block.name if block.size == 1 else f"{block.name}.{label}"
-                states.append(JumpState(start + k, name, block.rest, block.leaves_rest, block.name))
+                states.append(
+                    JumpState(
+                        start + k, name, block.rest, block.leaves_rest, block.name, block.bound
+                    )
+                )
     return states
 
 
@@ -195,6 +200,13 @@ class JumpDetector:
         k, onset = int(self._state[best]), float(self._onset[best])
         state = self.states[k]
         before = float(bank.estimate()[0][state.index])
+        if state.bound is not None and abs(before + jump) > state.bound:
+            self._keep(self._state != k, bank)  # its hypotheses start afresh
+            reason = (
+                f"a jump by {jump:+.4g} at {onset:.1f} s not taken in: {before + jump:+.4g} is"
+                f" beyond the state's physical bound ±{state.bound:g}"
+            )
+            return FaultEvent(t, state.name, float(ratio[best]), self.threshold, JUMP, reason)
         bank.accommodate(best, jump, variance)
         self._keep(self._state != k, bank)
         reason = f"jumped by {jump:+.4g} ± {np.sqrt(variance):.2g} at {onset:.1f} s"

@@ -25,12 +25,12 @@ H = np.array([[1.0, 0.0, SPEED]])
 R = np.array([[SPEED_NOISE**2]])
 
 
-def _toy_layout(rest: float | None = 0.0) -> StateLayout:
+def _toy_layout(rest: float | None = 0.0, bound: float | None = None) -> StateLayout:
     return StateLayout(
         (
             StateBlock("velocity", ("v",), (0.01,)),
             StateBlock("position", ("p",), (0.01,)),
-            StateBlock("wheel.slip", ("s",), (1e-4,), may_jump=True, rest=rest),
+            StateBlock("wheel.slip", ("s",), (1e-4,), may_jump=True, rest=rest, bound=bound),
         )
     )
 
@@ -41,11 +41,12 @@ def _toy_run(
     options: JumpDetectionOptions,
     steps: int,
     settle: int = 50,
+    bound: float | None = None,
 ) -> tuple[CentralizedFilter, JumpDetector, list[str], np.ndarray]:
     """Filter the toy wheel, the detector watching after ``settle`` steps (the filter's prior
     is wider than the truth's start, so its first innovations are smaller than S says); return
     the bank, the detector, the events and the truth. ``slip`` steps count from the watch."""
-    layout = _toy_layout()
+    layout = _toy_layout(bound=bound)
     bank = CentralizedFilter(layout)
     detector = JumpDetector(layout, jump_states(layout), options)
     start, end, ratio = slip
@@ -117,6 +118,20 @@ def test_a_slip_is_taken_in_and_its_end_sets_the_state_back_to_rest() -> None:
     assert "back to rest" in events[1]
     assert bank.kf.x[2] == pytest.approx(0.0, abs=1e-9)
     assert abs(bank.kf.x[0] - truth[0]) < 3.0 * np.sqrt(bank.kf.P[0, 0])
+
+
+def test_a_jump_beyond_the_physical_bound_is_not_taken_in() -> None:
+    """The toy wheel reads 3× the travel (s = 2) where a slip ratio is bounded by 1: the jump is
+    reported as not taken in and the state stays within its bound, whatever smaller jump the
+    detector finds later in what the filter has not absorbed (a harsh world's slip state took in
+    +0.7, +1.6 … +1.9·10⁴ within 20 s)."""
+    rng = np.random.default_rng(8)
+    bank, _, events, _ = _toy_run(rng, (100, 250, 2.0), JumpDetectionOptions(), 200, bound=1.0)
+    assert events and "not taken in" in events[0], events
+    assert abs(bank.kf.x[2]) <= 1.0
+    rng = np.random.default_rng(8)
+    bank, _, events, _ = _toy_run(rng, (100, 250, 0.6), JumpDetectionOptions(), 200, bound=1.0)
+    assert events and "jumped by" in events[0]  # within the bound: taken in as before
 
 
 @pytest.mark.parametrize("leaves_rest", [0, 1])
