@@ -357,7 +357,7 @@ class FederatedFilter:
         source = self._plugin_names[plugin]
         event = f.monitor.observe(t, result.nis, result.dof, suspect, source, result.whitened)
         if event is not None:
-            if event.action == ISOLATE and self._last_holder(f):
+            if event.action == ISOLATE and self._holding(f) and f in self._members():
                 event = replace(event, reason=f"{event.reason}; {LAST_HOLDER}")
             self.faults.append(event)
             f.reinitialize = event.action == READMIT
@@ -365,15 +365,6 @@ class FederatedFilter:
     def _holding(self, f: LocalFilter) -> bool:
         """Whether local ``f`` had an update that holds the SINS within the last χ² window."""
         return f.last_held >= self._now - self.options.fault_detection.window_s
-
-    def _last_holder(self, f: LocalFilter) -> bool:
-        """Whether ``f`` holds the SINS and no other healthy local does: isolating it would
-        leave a MEMS SINS to coast, which drifts further than any one sensor's fault pulls."""
-        return self._holding(f) and not any(
-            self._holding(g) and not g.monitor.isolated and not g.reinitialize
-            for g in self.locals
-            if g is not f
-        )
 
     def in_fusion(self, plugin: int) -> bool:
         """Whether the plugin's local is a member of the fusion (not isolated)."""
