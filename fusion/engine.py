@@ -56,7 +56,7 @@ from fusion.imu_gaps import GapBridge, bridge_imu_gaps
 from fusion.innovations import InnovationLog
 from fusion.jumps import JumpDetector, JumpState, jump_states
 from fusion.kalman import KalmanFilter
-from fusion.lock import LOST_LOCK, REACQUIRE, LockMonitor
+from fusion.lock import LOST_LOCK, REACQUIRE, LockMonitor, fading_factor
 from fusion.memory import release_freed_memory
 from fusion.observability import Observability, ObservabilityTracker
 from fusion.plugin import MeasurementContext, Plugin, PluginError, create_plugin
@@ -657,9 +657,17 @@ class Engine:
         if lock is not None and lock.observe(t, res.accepted) and self._alone(src, t):
             lock.reset()
             if not self._reacquire(src, t, sins, bank):
+                covariance = kf.P if shared is None else shared
+                predicted = m.H @ covariance @ m.H.T
+                noise = res.whitening @ res.whitening.T - predicted
+                factor = fading_factor(res.innovation, predicted, noise)
+                bank.inflate_common(factor)
                 window = self.config.filter.lock_window_s
-                reason = f"every update of {plugin.name} rejected for {window:g} s"
-                event = FaultEvent(t, plugin.name, math.nan, math.nan, LOST_LOCK, reason)
+                reason = (
+                    f"every update of {plugin.name} rejected for {window:g} s;"
+                    f" covariance of the SINS states inflated x{factor:.3g}"
+                )
+                event = FaultEvent(t, plugin.name, res.nis, math.nan, LOST_LOCK, reason)
                 bank.faults.append(event)
         if jumps is not None and signature is not None:
             events = [jumps.observe(t, bank, src, signature, res)]

@@ -522,6 +522,15 @@ class FederatedFilter:
             self.master.restart_block(indices, covariance / self.options.master_share)
         self._fused = None
 
+    def inflate_common(self, factor: float) -> None:
+        """Inflate the common states in every local and the master (their shares keep their
+        proportions, so the fused covariance is inflated by ``factor``)."""
+        for f in self.locals:
+            f.kf.inflate(COMMON, factor)
+        if self.master is not None:
+            self.master.inflate(COMMON, factor)
+        self._fused = None
+
     def common_covariance(self) -> NDArray[np.float64]:
         """The fused covariance of the common states (eq. 35)."""
         return self._global()[1]

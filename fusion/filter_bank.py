@@ -93,6 +93,10 @@ class FilterBank(Protocol):
         """Restart common states ``indices`` (the SINS has just been moved to a new estimate of
         them) at zero with ``covariance``, uncorrelated with everything else."""
 
+    def inflate_common(self, factor: float) -> None:
+        """Multiply the covariance of the common (SINS) states by ``factor`` ≥ 1, keeping
+        their correlations (:meth:`fusion.kalman.KalmanFilter.inflate`)."""
+
     @property
     def smoothing_dim(self) -> int:
         """Dimension of the state the smoother works on."""
@@ -186,6 +190,10 @@ class CentralizedFilter:
     def restart_common(self, indices: NDArray[np.intp], covariance: NDArray[np.float64]) -> None:
         """See :class:`FilterBank`."""
         self.kf.restart_block(indices, covariance)
+
+    def inflate_common(self, factor: float) -> None:
+        """See :class:`FilterBank`."""
+        self.kf.inflate(COMMON, factor)
 
     @property
     def smoothing_dim(self) -> int:

@@ -43,6 +43,7 @@ innovation and S), with ``Cov(w', e) = B D_c· − Gᵀ C`` in the update of C.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from functools import lru_cache
 
@@ -313,6 +314,16 @@ class KalmanFilter:
         self.P[:, indices] = 0.0
         self.P[np.ix_(indices, indices)] = covariance
         self.columns[indices, :] = 0.0
+
+    def inflate(self, indices: slice | NDArray[np.intp], factor: float) -> None:
+        """Multiply the covariance of states ``indices`` by ``factor`` ≥ 1, keeping their
+        correlations: ``P ← D P D`` (and the stored columns ``D C``) with ``D`` = √factor on
+        ``indices``, 1 elsewhere — the fading-memory step of a filter whose innovations show
+        errors far outside its covariance."""
+        scale = np.ones(self.dim)
+        scale[indices] = math.sqrt(factor)
+        self.P = self.P * np.outer(scale, scale)
+        self.columns = self.columns * scale[:, None]
 
     def condition(self, index: int, value: float) -> None:
         """Condition on state ``index`` being exactly ``value``: an update with H = e_indexᵀ and

@@ -19,6 +19,7 @@ machine is gets a ``lost lock`` line. Either way the monitor starts over.
 
 from __future__ import annotations
 
+import math
 from collections import deque
 from dataclasses import dataclass
 
@@ -37,6 +38,36 @@ class Reacquisition:
     covariance: NDArray[np.float64]
     velocity_enu: NDArray[np.float64]
     velocity_covariance: NDArray[np.float64]
+
+
+MAX_FADING = 1e8
+"""Largest fading factor (a σ 10⁴ times the filter's): an innovation that no inflation of
+``H P Hᵀ`` explains (it lies mostly in R's directions) gets this one."""
+
+
+def fading_factor(
+    innovation: NDArray[np.float64], predicted: NDArray[np.float64], noise: NDArray[np.float64]
+) -> float:
+    """The fading factor λ ≥ 1 with ``νᵀ (λ A + R)⁻¹ ν = m`` (module docstring) for innovation
+    ``ν`` (m,), its state part ``A = H P Hᵀ`` and noise part ``R`` (m, m); 1 when ``ν`` is
+    already within that, :data:`MAX_FADING` when no λ up to it suffices.
+
+    The statistic falls monotonically in λ; it is solved by bisection on log λ.
+    """
+    m = innovation.size
+
+    def excess(lam: float) -> float:
+        return float(innovation @ np.linalg.solve(lam * predicted + noise, innovation)) - m
+
+    if excess(1.0) <= 0.0:
+        return 1.0
+    if excess(MAX_FADING) > 0.0:
+        return MAX_FADING
+    lo, hi = 0.0, math.log(MAX_FADING)
+    for _ in range(40):
+        mid = 0.5 * (lo + hi)
+        lo, hi = (mid, hi) if excess(math.exp(mid)) > 0.0 else (lo, mid)
+    return math.exp(hi)
 
 
 class LockMonitor:
