@@ -126,6 +126,27 @@ def test_zero_angular_rate_on_an_epoch_grid_as_fine_as_the_imu_is_finite() -> No
     )
 
 
+def test_zero_angular_rate_noise_follows_a_gyro_noisier_than_its_datasheet() -> None:
+    """A gyro 5× noisier than its datasheet ARW (a harsh world's degraded IMU, a conveyor
+    shaking the machine): the ZARU's R is the samples' own standard error of the mean, so its
+    whitened rows stay near unit RMS; with the datasheet's alone they were ≈ 5σ and the odometer
+    update carrying them was rejected whole."""
+    rec = static_recording()
+    noisy = rec.imu.gyro + 4.9 * (rec.imu.gyro - rec.imu.gyro.mean(axis=0))
+    rec = replace(rec, imu=replace(rec.imu, gyro=noisy))
+    plugin = Zupt("zupt", Zupt.Options(zero_angular_rate=True, angular_rate_floor_dps=0.0), rec)
+    layout = layout_with(plugin.state_blocks())
+    ctx = perturbed_context(layout, np.zeros(layout.dim), position_enu=np.zeros(3))
+    zaru = plugin.zero_rate
+    assert zaru is not None
+    whitened = []
+    for k in range(20, 2900, 10):
+        m = zaru.measure(float(rec.imu.t[k]), float(rec.imu.t[k + 10]), ctx)
+        whitened.append(m.z / np.sqrt(np.diag(m.R)))
+    rms = float(np.sqrt(np.mean(np.square(whitened))))
+    assert 0.7 < rms < 1.5
+
+
 def test_a_non_finite_measurement_is_a_plugin_error_naming_it(
     monkeypatch: pytest.MonkeyPatch,
 ) -> None:

@@ -5,9 +5,14 @@ A machine that stands does not turn, so the mean gyro output ω̄ over an interv
 rate f_s, minus the bias the SINS removes (``ctx.gyro_bias`` = b̂, with the error state
 ε = b − b̂), is the earth rate seen in the body frame. With ``C̃_n^b = C_n^b (I + φ×)``::
 
-    z = ω̄ − b̂ − C̃_n^b ω_ieⁿ = ε + C̃_n^b (ω_ieⁿ×) φ + n,    R = (N_g² f_s / N + σ_floor²) I₃
+    z = ω̄ − b̂ − C̃_n^b ω_ieⁿ = ε + C̃_n^b (ω_ieⁿ×) φ + n,
+    R = diag(max(N_g² f_s, s²) / N + σ_floor²)
 
-(N_g the datasheet angle random walk, σ_floor the standstill vibration). It makes every gyro
+(N_g the datasheet angle random walk, s² the samples' own variance per axis, σ_floor the
+standstill vibration). The samples' variance is the standard error of their mean when the gyro
+is noisier than its datasheet (a harsh world's IMU 2–5× its figures, a conveyor shaking the
+machine): with the datasheet's alone the ZARU rows came out 5–13σ at rest and the odometer
+update that carries them was rejected whole, until the SINS coasted. It makes every gyro
 bias observable at rest — the vertical one included, which no velocity update reaches — so a
 static start learns a large turn-on bias (an MTi-G-700's 720 °/h) before the heading has run
 away with it: the static gyro calibration every MEMS alignment begins with.
@@ -65,5 +70,6 @@ class ZeroAngularRate:
         h = np.zeros((3, ctx.layout.dim))
         h[:, ctx.layout.slice(GYRO_BIAS)] = np.eye(3)
         h[:, ctx.layout.slice(ATTITUDE)] = c_n_b @ skew(w_ie)
-        variance = self.arw**2 * self.rate / count + self.floor**2
-        return Measurement(z, h, np.eye(3) * variance)
+        spread = self.imu.gyro[samples].var(axis=0, ddof=1) if count > 1 else np.zeros(3)
+        variance = np.maximum(self.arw**2 * self.rate, spread) / count + self.floor**2
+        return Measurement(z, h, np.diag(variance))
