@@ -20,6 +20,7 @@ from fusion.engine import RunResult
 from fusion.error_model import STATE_UNITS
 from fusion.fault_detection import ISOLATE, READMIT, FaultEvent
 from fusion.jumps import JUMP
+from fusion.lock import LOST_LOCK, REACQUIRE
 from fusion.metrics import compute_metrics, write_metrics_json
 from fusion.output_dir import FIGURE_FORMATS, RECORDING_FILES, RUN_JSON
 from fusion.recording import Recording
@@ -199,7 +200,9 @@ def summary(result: RunResult, recording: Recording) -> str:
     if result.config.filter.architecture == "federated" or actions:
         lines.append(
             f"faults     {actions.count(ISOLATE)} isolations, {actions.count(READMIT)} "
-            f"re-admissions, {actions.count(JUMP)} state jumps taken in (faults.csv)"
+            f"re-admissions, {actions.count(JUMP)} state jumps taken in, "
+            f"{actions.count(LOST_LOCK)} lost locks, {actions.count(REACQUIRE)} re-acquisitions"
+            " (faults.csv)"
         )
     if result.smoother_rejected:
         lines.append(
