@@ -39,6 +39,26 @@ def _random_system(rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
     return phi, a @ a.T + 1e-6 * np.eye(15)
 
 
+def test_inflating_the_common_states_matches_the_centralized_filter() -> None:
+    """A lost lock's fading factor (fusion.lock) inflates the common states in every local and
+    the master: the fused filter stays equal to the centralized one inflated alike, own states
+    and their cross terms included, through the rounds that follow."""
+    rng = np.random.default_rng(8)
+    fed, ckf = _banks_with_an_owning_local(FederatedOptions(sharing="trace", master_share=0.3))
+    for step in range(40):
+        phi, qd, plugin, h, r, z = _owning_step(rng, step)
+        for bank in (fed, ckf):
+            bank.predict(phi, qd)
+            local_layout, kf = bank.filter_of(plugin)
+            kf.update(z, h[:, : local_layout.dim], r)
+        _assert_same_round(fed, ckf, step)
+        if step == 20:
+            before = ckf.common_covariance()
+            fed.inflate_common(7.0)
+            ckf.inflate_common(7.0)
+            np.testing.assert_allclose(fed.common_covariance(), 7.0 * before, rtol=1e-9)
+
+
 @pytest.mark.parametrize("master_share", [0.0, 0.3])
 @pytest.mark.parametrize("sharing", ["equal", "trace", "inverse_trace"])
 def test_fusion_reset_equals_centralized_on_common_states(
