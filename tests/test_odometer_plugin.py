@@ -41,6 +41,24 @@ def _recording(speed: float) -> Recording:
     )
 
 
+def test_learned_noise_stops_at_its_ceiling() -> None:
+    """Innovations far beyond the configured σ (a SINS drifting faster than its covariance
+    says) raise a row's learned σ to at most adaptive_max_factor times the configured one: a
+    harsh world's odometer learnt a lateral σ of 1 m/s and then held nothing."""
+    rec = _recording(0.12)
+    opts = OdometerOptions(adaptive_window=5, adaptive_max_factor=10.0)
+    plugin = Odometer("odometer", opts, rec)
+    layout = layout_with(plugin.state_blocks())
+    ctx = perturbed_context(layout, np.zeros(layout.dim))
+    z = np.array([0.5, 0.0, 0.003])  # lateral 50 σ, speed on, vertical 0.3 σ
+    h = np.zeros((3, layout.dim))
+    for _ in range(5):
+        variance = plugin._noise(z, h, ctx)
+    sigma = np.sqrt(variance)
+    assert sigma[0] == pytest.approx(10.0 * opts.sigma_lateral_mps)
+    assert sigma[2] == pytest.approx(opts.sigma_vertical_mps)
+
+
 def test_h_matches_numerical_differentiation() -> None:
     """z(δx) − z(0) = H δx to first order, for every state the measurement depends on.
 

@@ -189,6 +189,13 @@ class OdometerOptions(PluginOptions):
         " Sage–Husa), at least the configured σ",
     )
     adaptive_window: int = Field(50, ge=2, description="innovations of the adaptive noise")
+    adaptive_max_factor: float = Field(
+        10.0,
+        ge=1.0,
+        description="the learned σ of a row is at most this multiple of its configured σ (the"
+        " encoder's jitter aside): innovations beyond that are the filter's error, not the"
+        " sensor's, and are left to the gate and the lost-lock inflation",
+    )
 
     @model_validator(mode="after")
     def _zero_rate_needs_odometer(self) -> OdometerOptions:
@@ -357,7 +364,12 @@ class Odometer(Plugin):
         noise its innovations show, instead of a filter that believes 1 cm/s. The speed row
         also takes at least the encoder's own jitter (:func:`reading_jitter`), which its readings
         show from the start of the motion on — the innovations teach R only after a window of
-        them, and a quantized encoder's first readings had set the scale 5 % off by then."""
+        them, and a quantized encoder's first readings had set the scale 5 % off by then.
+        The learned σ stops at ``adaptive_max_factor`` times the configured one: a SINS worse
+        than its datasheet (a harsh world's IMU) drifted faster than its covariance said, the
+        excess taught R a lateral σ of 1 m/s, the odometer then held nothing and the filter ran
+        10 m off with every update accepted; beyond that ceiling the gate rejects and a lost
+        lock inflates the SINS covariance instead (:mod:`fusion.lock`)."""
         if not self.options.adaptive_noise:
             return self.variance
         innovation = z - h @ ctx.x
@@ -369,7 +381,8 @@ class Odometer(Plugin):
         if len(self._excess) < self.options.adaptive_window:
             return variance
         learned = np.median(np.array(self._excess), axis=0) / CHI2_1_MEDIAN
-        return np.maximum(variance, learned)
+        ceiling = self.options.adaptive_max_factor**2 * self.variance
+        return np.maximum(variance, np.minimum(learned, ceiling))
 
     @staticmethod
     def _constrained_velocity(
