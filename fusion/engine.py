@@ -55,7 +55,7 @@ from fusion.filter_bank import CentralizedFilter, FilterBank
 from fusion.imu_gaps import GapBridge, bridge_imu_gaps
 from fusion.innovations import InnovationLog
 from fusion.jumps import JumpDetector, JumpState, jump_states
-from fusion.kalman import KalmanFilter
+from fusion.kalman import KalmanFilter, UpdateResult
 from fusion.lock import LOST_LOCK, REACQUIRE, LockMonitor, fading_factor
 from fusion.memory import release_freed_memory
 from fusion.observability import Observability, ObservabilityTracker
@@ -657,18 +657,8 @@ class Engine:
         if lock is not None and lock.observe(t, res.accepted) and self._alone(src, t):
             lock.reset()
             if not self._reacquire(src, t, sins, bank):
-                covariance = kf.P if shared is None else shared
-                predicted = m.H @ covariance @ m.H.T
-                noise = res.whitening @ res.whitening.T - predicted
-                factor = fading_factor(res.innovation, predicted, noise)
-                bank.inflate_common(factor)
-                window = self.config.filter.lock_window_s
-                reason = (
-                    f"every update of {plugin.name} rejected for {window:g} s;"
-                    f" covariance of the SINS states inflated x{factor:.3g}"
-                )
-                event = FaultEvent(t, plugin.name, res.nis, math.nan, LOST_LOCK, reason)
-                bank.faults.append(event)
+                statistic_covariance = kf.P if shared is None else shared
+                bank.faults.append(self._inflate(src, t, m.H, statistic_covariance, res, bank))
         if jumps is not None and signature is not None:
             events = [jumps.observe(t, bank, src, signature, res)]
             events += [jumps.rest(t, bank, name) for name in m.at_rest]
@@ -686,6 +676,29 @@ class Engine:
         anchors after the middle of the face found every range rejected for good."""
         since = t - self.config.filter.lock_window_s
         return all(last <= since for k, last in enumerate(self._last_held) if k != src)
+
+    def _inflate(
+        self,
+        src: int,
+        t: float,
+        h: NDArray[np.float64],
+        covariance: NDArray[np.float64],
+        res: UpdateResult,
+        bank: FilterBank,
+    ) -> FaultEvent:
+        """Inflate the SINS covariance by the fading factor of plugin ``src``'s last rejected
+        update ``res`` (rows ``h``, gated against ``covariance``), for a lost lock the plugin
+        cannot re-acquire (:mod:`fusion.lock`); its ``faults.csv`` line."""
+        predicted = h @ covariance @ h.T
+        noise = res.whitening @ res.whitening.T - predicted
+        factor = fading_factor(res.innovation, predicted, noise)
+        bank.inflate_common(factor)
+        name = self.plugins[src].name
+        reason = (
+            f"every update of {name} rejected for {self.config.filter.lock_window_s:g} s;"
+            f" covariance of the SINS states inflated x{factor:.3g}"
+        )
+        return FaultEvent(t, name, res.nis, math.nan, LOST_LOCK, reason)
 
     def _reacquire(self, src: int, t: float, sins: Strapdown, bank: FilterBank) -> bool:
         """Move the SINS to where plugin ``src`` alone puts it, restart position and velocity

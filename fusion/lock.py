@@ -13,8 +13,17 @@ every anchor looks the same from the UWB alone), the lock is lost. The engine
 then asks the plugin for what it can say alone (:meth:`fusion.plugin.Plugin.reacquire`, e.g. a
 UWB least-squares fix from the ranges of the last seconds), restarts the filter's position and
 velocity at that fix, uncorrelated with the rest, and writes a ``reacquire`` line to
-``faults.csv``; a plugin that cannot say where the
-machine is gets a ``lost lock`` line. Either way the monitor starts over.
+``faults.csv``. A plugin that cannot say where the machine is (an odometer, a motion
+constraint) gets a ``lost lock`` line, and the covariance of the SINS states is inflated by the
+fading factor λ of the last rejected innovation (:func:`fading_factor`): the smallest λ with
+``νᵀ (λ H P Hᵀ + R)⁻¹ ν = m``, the factor that makes that innovation a 1-σ one (the
+fading-memory step; Fagin 1964; Xia, Rao, Ying & Shen, *Adaptive fading Kalman filter with an
+application*, Automatica 1994), at most :data:`MAX_FADING`. A SINS whose gyro bias is several
+times its prior (a harsh world's 2700 °/h against 720 °/h) otherwise tilts faster than its
+covariance allows, has every odometer update rejected from its first seconds, and coasts for the
+rest of the recording. Only the SINS states are inflated: the rejected plugin's own states
+(mounting, scale) would otherwise take up the next update instead of the SINS. Either way the
+monitor starts over.
 """
 
 from __future__ import annotations
@@ -40,9 +49,10 @@ class Reacquisition:
     velocity_covariance: NDArray[np.float64]
 
 
-MAX_FADING = 1e8
-"""Largest fading factor (a σ 10⁴ times the filter's): an innovation that no inflation of
-``H P Hᵀ`` explains (it lies mostly in R's directions) gets this one."""
+MAX_FADING = 1e4
+"""Largest fading factor (a σ 100 times the filter's): an innovation that no inflation of
+``H P Hᵀ`` within it explains lies mostly in R's directions — the sensor's own inconsistency,
+which no SINS covariance can absorb."""
 
 
 def fading_factor(
