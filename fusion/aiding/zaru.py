@@ -8,27 +8,33 @@ rate f_s, minus the bias the SINS removes (``ctx.gyro_bias`` = b̂, with the err
     z = ω̄ − b̂ − C̃_n^b ω_ieⁿ = ε + C̃_n^b (ω_ieⁿ×) φ + n,
     R = diag(max(N_g² f_s, s²) / N + σ_floor²)
 
-(N_g the datasheet angle random walk, s² the samples' own variance per axis, σ_floor the
-standstill vibration). The samples' variance is the standard error of their mean when the gyro
-is noisier than its datasheet (a harsh world's IMU 2–5× its figures, a conveyor shaking the
-machine): with the datasheet's alone the ZARU rows came out 5–13σ at rest and the odometer
-update that carries them was rejected whole, until the SINS coasted. It makes every gyro
-bias observable at rest — the vertical one included, which no velocity update reaches — so a
-static start learns a large turn-on bias (an MTi-G-700's 720 °/h) before the heading has run
-away with it: the static gyro calibration every MEMS alignment begins with.
+(N_g the datasheet angle random walk, s² the samples' own variance per axis pooled over the
+last intervals at rest, σ_floor the standstill vibration). s²/N is the standard error of the
+mean when the gyro is noisier than its datasheet (a harsh world's IMU 2–5× its figures, a
+conveyor shaking the machine): with the datasheet's alone the ZARU rows came out 5–13σ at rest
+and the odometer update that carries them was rejected whole, until the SINS coasted.
+
+The ZARU makes every gyro bias observable at rest — the vertical one included, which no velocity
+update reaches — so a static start learns a large turn-on bias (an MTi-G-700's 720 °/h) before
+the heading has run away with it: the static gyro calibration every MEMS alignment begins with.
 """
 
 from __future__ import annotations
 
 import math
+from collections import deque
 
 import numpy as np
+from numpy.typing import NDArray
 
 from fusion.attitude import skew
 from fusion.earth import OMEGA_IE
 from fusion.error_model import ATTITUDE, GYRO_BIAS
 from fusion.plugin import Measurement, MeasurementContext
 from fusion.recording import Recording
+
+SCATTER_INTERVALS = 20
+"""ZARU intervals whose gyro scatter is pooled (2 s of a standstill at 10 Hz)."""
 
 
 class ZeroAngularRate:
@@ -55,6 +61,7 @@ class ZeroAngularRate:
         self.arw = math.radians(spec.gyro_arw_deg_rth) / 60.0
         self.rate = 1.0 / float(np.median(np.diff(self.imu.t)))
         self.floor = math.radians(floor_dps)
+        self._scatter: deque[tuple[NDArray[np.float64], int]] = deque(maxlen=SCATTER_INTERVALS)
 
     def measure(self, t_start: float, t_end: float, ctx: MeasurementContext) -> Measurement:
         """The ZARU from the IMU samples in ``(t_start, t_end]`` (module docstring); from the
@@ -70,6 +77,18 @@ class ZeroAngularRate:
         h = np.zeros((3, ctx.layout.dim))
         h[:, ctx.layout.slice(GYRO_BIAS)] = np.eye(3)
         h[:, ctx.layout.slice(ATTITUDE)] = c_n_b @ skew(w_ie)
-        spread = self.imu.gyro[samples].var(axis=0, ddof=1) if count > 1 else np.zeros(3)
-        variance = np.maximum(self.arw**2 * self.rate, spread) / count + self.floor**2
-        return Measurement(z, h, np.diag(variance))
+        variance = np.maximum(self.arw**2 * self.rate, self._spread(samples)) / count
+        return Measurement(z, h, np.diag(variance + self.floor**2))
+
+    def _spread(self, samples: slice) -> NDArray[np.float64]:
+        """Per-axis variance of the gyro samples at rest, pooled over the last
+        :data:`SCATTER_INTERVALS` intervals (a 10-sample interval's own estimate alone, taken
+        at its max with the datasheet's, would raise R by a quarter on average)."""
+        gyro = self.imu.gyro[samples]
+        if gyro.shape[0] > 1:
+            deviations = gyro - gyro.mean(axis=0)
+            self._scatter.append((np.sum(deviations**2, axis=0), gyro.shape[0] - 1))
+        if not self._scatter:
+            return np.zeros(3)
+        dof = sum(d for _, d in self._scatter)
+        return np.sum([ss for ss, _ in self._scatter], axis=0) / dof
