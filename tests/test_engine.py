@@ -2,18 +2,22 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
 from functools import lru_cache
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
 from analytic_truth import ShearerMotion, Synthetic, synthesize
 
+from fusion.aiding.zupt import Zupt
 from fusion.attitude import dcm_from_euler, wrap_angle
 from fusion.cli import EXIT_BAD_INPUT, main
 from fusion.config import ConfigError, load_config, parse_config
 from fusion.engine import Engine
 from fusion.error_model import ImuNoise
+from fusion.plugin import Measurement, PluginError
 from fusion.recording import (
     ImuData,
     PositionData,
@@ -23,6 +27,7 @@ from fusion.recording import (
     read_recording,
     write_recording,
 )
+from tests.plugin_support import static_recording
 
 SPEC = {
     "gyro_bias_deg_h": 20.0,
@@ -269,3 +274,39 @@ def test_validate_config_checks_plugin_options(tmp_path: Path, capsys) -> None: 
     assert main(["validate-config", str(bad)]) == EXIT_BAD_INPUT
     err = capsys.readouterr().err
     assert "plugins[0].sigma_sped_mps" in err and "sigma_speed_mps" in err
+
+
+# ------------------------------------------------------- plugin measurements the engine refuses
+def test_a_non_finite_measurement_is_a_plugin_error_naming_it(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    measure = Zupt.measure
+
+    def broken(self: Zupt, index: int, ctx: Any) -> Measurement | None:
+        m = measure(self, index, ctx)
+        return None if m is None else replace(m, z=np.full_like(m.z, np.nan))
+
+    monkeypatch.setattr(Zupt, "measure", broken)
+    config = parse_config({"name": "z", "plugins": [{"type": "zupt"}]})
+    with pytest.raises(PluginError, match=r"plugin 'zupt' returned a measurement with a NaN"):
+        Engine(config, static_recording()).run()
+
+
+def test_an_update_whose_innovation_covariance_is_not_positive_definite_is_rejected(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """S = H P Hᵀ + R not positive definite (a plugin's R, or a stored error's cross terms gone
+    inconsistent after an isolation): the update is counted as rejected, the run goes on
+    (a harsh random world stopped ``full_afkf`` with a LinAlgError at a CPOEM update)."""
+    measure = Zupt.measure
+
+    def indefinite(self: Zupt, index: int, ctx: Any) -> Measurement | None:
+        m = measure(self, index, ctx)
+        return None if m is None else replace(m, R=-1e3 * np.eye(m.z.size))
+
+    monkeypatch.setattr(Zupt, "measure", indefinite)
+    config = parse_config({"name": "z", "plugins": [{"type": "zupt"}]})
+    result = Engine(config, static_recording()).run()
+    log = result.innovations["zupt"]
+    assert log.count > 0 and log.rejected == log.count
+    assert np.isfinite(result.solution.position).all()
