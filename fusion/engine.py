@@ -657,8 +657,11 @@ class Engine:
         if lock is not None and lock.observe(t, res.accepted) and self._alone(src, t):
             lock.reset()
             if not self._reacquire(src, t, sins, bank):
-                statistic_covariance = kf.P if shared is None else shared
-                bank.faults.append(self._inflate(src, t, m.H, statistic_covariance, res, bank))
+                factor = 1.0
+                if lock.first_inflation():
+                    statistic_covariance = kf.P if shared is None else shared
+                    factor = self._inflate(m.H, statistic_covariance, res, bank)
+                bank.faults.append(self._lost_lock(src, t, res, factor))
         if jumps is not None and signature is not None:
             events = [jumps.observe(t, bank, src, signature, res)]
             events += [jumps.rest(t, bank, name) for name in m.at_rest]
@@ -677,26 +680,31 @@ class Engine:
         since = t - self.config.filter.lock_window_s
         return all(last <= since for k, last in enumerate(self._last_held) if k != src)
 
+    @staticmethod
     def _inflate(
-        self,
-        src: int,
-        t: float,
         h: NDArray[np.float64],
         covariance: NDArray[np.float64],
         res: UpdateResult,
         bank: FilterBank,
-    ) -> FaultEvent:
-        """Inflate the SINS covariance by the fading factor of plugin ``src``'s last rejected
-        update ``res`` (rows ``h``, gated against ``covariance``), for a lost lock the plugin
-        cannot re-acquire (:mod:`fusion.lock`); its ``faults.csv`` line."""
+    ) -> float:
+        """Inflate the SINS covariance by the fading factor of the last rejected update ``res``
+        (rows ``h``, gated against ``covariance``) of a lost lock the plugin cannot re-acquire
+        (:mod:`fusion.lock`); the factor."""
         predicted = h @ covariance @ h.T
         noise = res.whitening @ res.whitening.T - predicted
         factor = fading_factor(res.innovation, predicted, noise)
         bank.inflate_common(factor)
+        return factor
+
+    def _lost_lock(self, src: int, t: float, res: UpdateResult, factor: float) -> FaultEvent:
+        """The ``faults.csv`` line of plugin ``src``'s lost lock, with the inflation (1: none,
+        the last one having brought no update back)."""
         name = self.plugins[src].name
-        reason = (
-            f"every update of {name} rejected for {self.config.filter.lock_window_s:g} s;"
-            f" covariance of the SINS states inflated x{factor:.3g}"
+        reason = f"every update of {name} rejected for {self.config.filter.lock_window_s:g} s; "
+        reason += (
+            f"covariance of the SINS states inflated x{factor:.3g}"
+            if factor > 1.0
+            else "not inflated again: the last inflation did not bring its updates back"
         )
         return FaultEvent(t, name, res.nis, math.nan, LOST_LOCK, reason)
 

@@ -523,13 +523,13 @@ class FederatedFilter:
         self._fused = None
 
     def inflate_common(self, factor: float) -> None:
-        """Inflate the common states in every local and the master (their shares keep their
-        proportions, so the fused covariance is inflated by ``factor``)."""
-        for f in self.locals:
-            f.kf.inflate(COMMON, factor)
-        if self.master is not None:
-            self.master.inflate(COMMON, factor)
-        self._fused = None
+        """Add ``(factor − 1)`` times the fused common variances as uncorrelated process noise
+        (an identity time update: every local and the master take their shares of it, as the
+        centralized filter's :meth:`fusion.kalman.KalmanFilter.inflate` does at once)."""
+        dim = self.layout.dim
+        noise = np.zeros((dim, dim))
+        noise[COMMON, COMMON] = np.diag((factor - 1.0) * np.diagonal(self.common_covariance()))
+        self.predict(np.eye(dim), noise)
 
     def common_covariance(self) -> NDArray[np.float64]:
         """The fused covariance of the common states (eq. 35)."""

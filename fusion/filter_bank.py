@@ -94,8 +94,8 @@ class FilterBank(Protocol):
         them) at zero with ``covariance``, uncorrelated with everything else."""
 
     def inflate_common(self, factor: float) -> None:
-        """Multiply the covariance of the common (SINS) states by ``factor`` ≥ 1, keeping
-        their correlations (:meth:`fusion.kalman.KalmanFilter.inflate`)."""
+        """Multiply the variances of the common (SINS) states by ``factor`` ≥ 1, the increase
+        added as uncorrelated noise (:meth:`fusion.kalman.KalmanFilter.inflate`)."""
 
     @property
     def smoothing_dim(self) -> int:

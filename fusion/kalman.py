@@ -43,7 +43,6 @@ innovation and S), with ``Cov(w', e) = B D_c· − Gᵀ C`` in the update of C.
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 from functools import lru_cache
 
@@ -316,14 +315,15 @@ class KalmanFilter:
         self.columns[indices, :] = 0.0
 
     def inflate(self, indices: slice | NDArray[np.intp], factor: float) -> None:
-        """Multiply the covariance of states ``indices`` by ``factor`` ≥ 1, keeping their
-        correlations: ``P ← D P D`` (and the stored columns ``D C``) with ``D`` = √factor on
-        ``indices``, 1 elsewhere — the fading-memory step of a filter whose innovations show
-        errors far outside its covariance."""
-        scale = np.ones(self.dim)
-        scale[indices] = math.sqrt(factor)
-        self.P = self.P * np.outer(scale, scale)
-        self.columns = self.columns * scale[:, None]
+        """Multiply the variances of states ``indices`` by ``factor`` ≥ 1 by adding
+        ``(factor − 1) P_ii`` to each as uncorrelated noise: the covariances stay, so the
+        correlations shrink by √factor. Scaling the whole block instead (``D P D``) kept the
+        tight velocity–attitude correlations of a converged SINS at full strength: the first
+        zero velocity accepted after the inflation swung the attitude and the next ones were
+        rejected at ten times their σ."""
+        added = np.zeros(self.dim)
+        added[indices] = (factor - 1.0) * np.diagonal(self.P)[indices]
+        self.P = self.P + np.diag(added)
 
     def condition(self, index: int, value: float) -> None:
         """Condition on state ``index`` being exactly ``value``: an update with H = e_indexᵀ and

@@ -14,16 +14,20 @@ then asks the plugin for what it can say alone (:meth:`fusion.plugin.Plugin.reac
 UWB least-squares fix from the ranges of the last seconds), restarts the filter's position and
 velocity at that fix, uncorrelated with the rest, and writes a ``reacquire`` line to
 ``faults.csv``. A plugin that cannot say where the machine is (an odometer, a motion
-constraint) gets a ``lost lock`` line, and the covariance of the SINS states is inflated by the
-fading factor λ of the last rejected innovation (:func:`fading_factor`): the smallest λ with
+constraint) gets a ``lost lock`` line, and the variances of the SINS states are multiplied by
+the fading factor λ of the last rejected innovation (:func:`fading_factor`): the smallest λ with
 ``νᵀ (λ H P Hᵀ + R)⁻¹ ν = m``, the factor that makes that innovation a 1-σ one (the
 fading-memory step; Fagin 1964; Xia, Rao, Ying & Shen, *Adaptive fading Kalman filter with an
-application*, Automatica 1994), at most :data:`MAX_FADING`. A SINS whose gyro bias is several
+application*, Automatica 1994), at most :data:`MAX_FADING`. The increase is added as
+uncorrelated noise (:meth:`fusion.kalman.KalmanFilter.inflate`), not as ``λ P``: the
+velocity–attitude correlations of a converged SINS, kept at full strength, let the first zero
+velocity after the inflation swing the attitude. A SINS whose gyro bias is several
 times its prior (a harsh world's 2700 °/h against 720 °/h) otherwise tilts faster than its
 covariance allows, has every odometer update rejected from its first seconds, and coasts for the
 rest of the recording. Only the SINS states are inflated: the rejected plugin's own states
-(mounting, scale) would otherwise take up the next update instead of the SINS. Either way the
-monitor starts over.
+(mounting, scale) would otherwise take up the next update instead of the SINS. Once per loss:
+a lost lock again before a window with most updates accepted is only reported
+(:meth:`LockMonitor.first_inflation`). Either way the monitor starts over.
 """
 
 from __future__ import annotations
@@ -99,6 +103,19 @@ class LockMonitor:
         self._since: float | None = None
         self.last_accepted: float | None = None
         """Time of the last update the filter accepted (None: none yet)."""
+        self._inflated = False
+
+    def first_inflation(self) -> bool:
+        """Whether the filter may inflate for this lost lock: not when it already did for an
+        earlier one and no full window since has had most of its updates accepted. An
+        inflation that did not bring the plugin's updates back shows a sensor the gate is right
+        to reject (a false standstill, a slipping wheel): repeated ones compounded (×16, ×15,
+        ×29 … every 3 s, each followed by one accepted update, on a random world's SINS + ZUPT:
+        σ 10⁵ times its size and the SINS 15 km off)."""
+        if self._inflated:
+            return False
+        self._inflated = True
+        return True
 
     def observe(self, t: float, accepted: bool) -> bool:
         """Add one update; whether the lock is lost (every update of a full window rejected)."""
@@ -111,6 +128,8 @@ class LockMonitor:
         while self._updates[0][0] <= t - self.window_s:
             self._accepted -= self._updates.popleft()[1]
         full = t - self._since >= self.window_s and len(self._updates) >= self.min_updates
+        if full and 2 * self._accepted >= len(self._updates):
+            self._inflated = False  # the lock is back: a window with most updates accepted
         return full and self._accepted == 0
 
     def reset(self) -> None:

@@ -95,7 +95,7 @@ def test_fading_factor_makes_the_innovation_one_sigma() -> None:
     assert fading_factor(np.array([0.0, 0.0, 100.0]), flat, noise) == MAX_FADING
 
 
-def test_inflation_scales_the_block_and_keeps_its_correlations() -> None:
+def test_inflation_adds_uncorrelated_variance_to_the_block() -> None:
     rng = np.random.default_rng(4)
     a = rng.normal(size=(6, 6))
     p = a @ a.T
@@ -103,10 +103,22 @@ def test_inflation_scales_the_block_and_keeps_its_correlations() -> None:
     kf.columns = rng.normal(size=(6, 2))
     columns = kf.columns.copy()
     kf.inflate(slice(0, 3), 9.0)
-    assert np.allclose(kf.P[:3, :3], 9.0 * p[:3, :3]) and np.allclose(kf.P[3:, 3:], p[3:, 3:])
-    assert np.allclose(kf.P[:3, 3:], 3.0 * p[:3, 3:]) and np.allclose(kf.P, kf.P.T)
-    assert np.allclose(kf.columns[:3], 3.0 * columns[:3])
-    assert np.allclose(kf.columns[3:], columns[3:])
+    assert np.allclose(np.diagonal(kf.P)[:3], 9.0 * np.diagonal(p)[:3])
+    off_diagonal = ~np.eye(6, dtype=bool)
+    assert np.allclose(kf.P[off_diagonal], p[off_diagonal]) and np.allclose(kf.P[3:, 3:], p[3:, 3:])
+    assert np.allclose(kf.columns, columns)
+    assert np.linalg.eigvalsh(kf.P).min() >= np.linalg.eigvalsh(p).min() - 1e-12
+
+
+def test_a_second_lost_lock_inflates_only_after_the_lock_came_back() -> None:
+    monitor = LockMonitor(window_s=3.0, min_updates=10)
+    assert monitor.first_inflation() and not monitor.first_inflation()
+    for t in np.arange(0.0, 2.0, 0.1):  # one update in two accepted: no full window yet
+        monitor.observe(t, accepted=bool(round(t * 10) % 2))
+    assert not monitor.first_inflation()
+    for t in np.arange(2.0, 4.0, 0.1):  # a full window with half its updates accepted
+        monitor.observe(t, accepted=bool(round(t * 10) % 2))
+    assert monitor.first_inflation()
 
 
 def test_odometer_lost_lock_inflates_instead_of_coasting(tmp_path: Path) -> None:
