@@ -46,12 +46,7 @@ def test_inflating_the_common_states_matches_the_centralized_filter() -> None:
     rng = np.random.default_rng(8)
     fed, ckf = _banks_with_an_owning_local(FederatedOptions(sharing="trace", master_share=0.3))
     for step in range(40):
-        phi, qd, plugin, h, r, z = _owning_step(rng, step)
-        for bank in (fed, ckf):
-            bank.predict(phi, qd)
-            local_layout, kf = bank.filter_of(plugin)
-            kf.update(z, h[:, : local_layout.dim], r)
-        _assert_same_round(fed, ckf, step)
+        _owning_round(fed, ckf, rng, step)
         if step == 20:
             before = ckf.common_covariance()
             fed.inflate_common(7.0)
@@ -119,6 +114,18 @@ def _owning_step(
     return phi, qd, plugin, h, r, rng.standard_normal(2)
 
 
+def _owning_round(
+    fed: FederatedFilter, ckf: CentralizedFilter, rng: np.random.Generator, step: int
+) -> None:
+    """One :func:`_owning_step` through both banks, then :func:`_assert_same_round`."""
+    phi, qd, plugin, h, r, z = _owning_step(rng, step)
+    for bank in (fed, ckf):
+        bank.predict(phi, qd)
+        local_layout, kf = bank.filter_of(plugin)
+        kf.update(z, h[:, : local_layout.dim], r)
+    _assert_same_round(fed, ckf, step)
+
+
 def _assert_same_round(fed: FederatedFilter, ckf: CentralizedFilter, step: int) -> None:
     """Feedback, estimate and covariance of the two banks agree."""
     np.testing.assert_allclose(fed.feedback(step), ckf.feedback(step), rtol=1e-8, atol=1e-12)
@@ -152,12 +159,7 @@ def test_fusion_reset_equals_centralized_with_a_local_owning_states() -> None:
     rng = np.random.default_rng(5)
     fed, ckf = _banks_with_an_owning_local(FederatedOptions(sharing="trace"))
     for step in range(60):
-        phi, qd, plugin, h, r, z = _owning_step(rng, step)
-        for bank in (fed, ckf):
-            bank.predict(phi, qd)
-            local_layout, kf = bank.filter_of(plugin)
-            kf.update(z, h[:, : local_layout.dim], r)
-        _assert_same_round(fed, ckf, step)
+        _owning_round(fed, ckf, rng, step)
 
 
 @pytest.mark.parametrize("master_share", [0.0, 0.3])
