@@ -702,7 +702,7 @@ class Engine:
         name = self.plugins[src].name
         reason = f"every update of {name} rejected for {self.config.filter.lock_window_s:g} s; "
         reason += (
-            f"covariance of the SINS states inflated x{factor:.3g}"
+            f"variances of the SINS states inflated x{factor:.3g}"
             if factor > 1.0
             else "not inflated again: the last inflation did not bring its updates back"
         )
