@@ -73,21 +73,21 @@ class ZeroAngularRate:
         count = max(samples.stop - samples.start, 1)
         c_n_b = ctx.c_b_n.T
         w_ie = OMEGA_IE * np.array([0.0, np.cos(ctx.lat), np.sin(ctx.lat)])
-        z = self.imu.gyro[samples].mean(axis=0) - ctx.gyro_bias - c_n_b @ w_ie
+        gyro = self.imu.gyro[samples]
+        mean = gyro.mean(axis=0)
+        z = mean - ctx.gyro_bias - c_n_b @ w_ie
         h = np.zeros((3, ctx.layout.dim))
         h[:, ctx.layout.slice(GYRO_BIAS)] = np.eye(3)
         h[:, ctx.layout.slice(ATTITUDE)] = c_n_b @ skew(w_ie)
-        variance = np.maximum(self.arw**2 * self.rate, self._spread(samples)) / count
+        variance = np.maximum(self.arw**2 * self.rate, self._spread(gyro, mean)) / count
         return Measurement(z, h, np.diag(variance + self.floor**2))
 
-    def _spread(self, samples: slice) -> NDArray[np.float64]:
-        """Per-axis variance of the gyro samples at rest, pooled over the last
-        :data:`SCATTER_INTERVALS` intervals (a 10-sample interval's own estimate alone, taken
-        at its max with the datasheet's, would raise R by a quarter on average)."""
-        gyro = self.imu.gyro[samples]
+    def _spread(self, gyro: NDArray[np.float64], mean: NDArray[np.float64]) -> NDArray[np.float64]:
+        """Per-axis variance of the gyro samples at rest (``gyro``, their ``mean``), pooled
+        over the last :data:`SCATTER_INTERVALS` intervals (a 10-sample interval's own estimate
+        alone, taken at its max with the datasheet's, would raise R by a quarter on average)."""
         if gyro.shape[0] > 1:
-            deviations = gyro - gyro.mean(axis=0)
-            self._scatter.append((np.sum(deviations**2, axis=0), gyro.shape[0] - 1))
+            self._scatter.append((np.sum((gyro - mean) ** 2, axis=0), gyro.shape[0] - 1))
         if not self._scatter:
             return np.zeros(3)
         dof = sum(d for _, d in self._scatter)
