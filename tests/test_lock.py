@@ -57,13 +57,12 @@ def test_only_updates_that_fix_velocity_or_position_hold_the_filter() -> None:
 
 
 def test_sins_uwb_reacquires_after_an_outage(tmp_path: Path) -> None:
-    """longwall-200m near the gate, the UWB dropped from 100 to 220 s: the SINS alone drifts 43 m
-    (its σ 215 m). When the anchors answer again a range linearized that far from the truth
-    would claim centimetres (16 m off at a σ of 0.3 m right after), so the UWB plugin asks for
-    a re-acquisition: the ranges of the next two seconds put the filter back within a metre.
-    What stays is the heading the outage cost (22° at 220 s, 36° by 290 s, σ 6°): through
-    the 0.9-m tag lever arm it leaves the IMU point 0.3–1 m off with a σ of 7 cm — an
-    inconsistency of the heading, not of the re-acquisition."""
+    """longwall-200m near the gate, the UWB dropped from 100 to 220 s: the SINS, held only by the
+    constraint and the shearer's top speed, drifts 7 m. When the anchors answer again a range
+    linearized that far from the truth would claim centimetres, so the UWB plugin asks for a
+    re-acquisition: the ranges of the next two seconds put the filter back within a metre.
+    (Without the top speed the drift was 43 m, and the heading the outage cost, 22–36°, left
+    the IMU point 0.3–1 m off through the tag lever arm after the re-acquisition.)"""
     outage = "faults=[{kind: dropout, sensor: uwb, t_start: 100, t_end: 220}]"
     path = simulate("longwall-200m", tmp_path / "rec", seed=1, overrides=["duration_s=300", outage])
     rec = read_recording(path)
@@ -77,7 +76,7 @@ def test_sins_uwb_reacquires_after_an_outage(tmp_path: Path) -> None:
     inside, position, *_ = interpolate_truth(rec.truth, sol.t)
     error = np.hypot(*(sol.position[inside, :2] - position[:, :2]).T)
     t = sol.t[inside]
-    assert error[(t > 210) & (t < 220)].max() > 30.0  # coasting
+    assert error[(t > 210) & (t < 220)].max() > 5.0  # coasting
     assert error[t > reacquired[0] + 1.0].max() < 2.0
 
 

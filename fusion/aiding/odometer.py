@@ -37,10 +37,13 @@ vibration). When the previous reading was not measured (rate cap) the epoch's ve
 
 (columns δv, φ, δp, ε, ∇, then this plugin's δα (3) and δk_D). Mode ``motion_constraint``
 keeps only the x and z rows and needs no odometer (seed 002 eq. 17); it runs at the rate given
-in the options on the IMU clock and owns only δα. Its mounting columns take the SINS velocity,
-or zero while the speed is within 3σ of the velocity's uncertainty (nothing observes the speed
-along the track at a standstill; see ``_constrained_velocity``). The odometer lever arm is
-neglected (the shearer turns at < 0.1°/s, so ω × l is below 1 mm/s for a lever arm of a metre).
+in the options on the IMU clock and owns only δα — and, given the machine's top speed
+(``max_speed_mps``), its speed along the track u, against which it keeps the y row as
+``z_y = ṽ^m_y`` with ``H_u = 1`` (:meth:`Odometer._speed_block`). Its mounting columns take the
+SINS velocity, or zero while the speed is within 3σ of the velocity's uncertainty (nothing
+observes the speed along the track at a standstill; see ``_constrained_velocity``). The odometer
+lever arm is neglected (the shearer turns at < 0.1°/s, so ω × l is below 1 mm/s for a lever arm
+of a metre).
 δα_y does not enter any row (a rotation about the travel direction leaves v^m unchanged), so its
 σ stays at its prior — the seed's observability analysis (§3.3).
 
@@ -160,6 +163,20 @@ class OdometerOptions(PluginOptions):
         " are detected, estimated and taken in (fusion.jumps; options filter.jump_detection)",
     )
     constraint_rate_hz: float = Field(10.0, gt=0, description="motion_constraint mode only")
+    max_speed_mps: float | None = Field(
+        None,
+        gt=0,
+        description="motion_constraint mode only: the machine's top speed along the track. The"
+        " plugin then owns that speed as a state, a Gauss–Markov process of σ max_speed/√3"
+        " (anywhere in ±max_speed), so that without an odometer the SINS speed stays within"
+        " what the machine can do (a shearer hauls at ≤ 30–40 m/min); None: no such state",
+    )
+    speed_correlation_time_s: float = Field(
+        600.0,
+        gt=0,
+        description="correlation time of that speed: a shearer holds its haulage speed for"
+        " minutes (a pass along a face takes tens of minutes)",
+    )
     zero_angular_rate: bool = Field(
         False, description="ZARU while the odometer shows standstill (mode odometer only)"
     )
@@ -204,6 +221,14 @@ class OdometerOptions(PluginOptions):
         return self
 
     @model_validator(mode="after")
+    def _speed_state_needs_constraint(self) -> OdometerOptions:
+        if self.max_speed_mps is not None and self.mode != "motion_constraint":
+            raise ValueError(
+                "max_speed_mps needs mode: motion_constraint (an odometer measures it)"
+            )
+        return self
+
+    @model_validator(mode="after")
     def _windows_apart(self) -> OdometerOptions:
         if self.steady_window_s > 0 and self.steady_lag_s < self.reference_window_s:
             raise ValueError(
@@ -244,12 +269,11 @@ class Odometer(Plugin):
             options.steady_window_s,
             options.steady_lag_s,
         )
-        self.rows = np.array([0, 1, 2]) if self.use_speed else np.array([0, 2])
+        self._speed_state = options.max_speed_mps is not None
+        self.rows = np.array([0, 1, 2]) if self.use_speed or self._speed_state else np.array([0, 2])
+        along = options.sigma_speed_mps if self.use_speed else options.sigma_lateral_mps
         self.variance = (
-            np.array(
-                [options.sigma_lateral_mps, options.sigma_speed_mps, options.sigma_vertical_mps]
-            )[self.rows]
-            ** 2
+            np.array([options.sigma_lateral_mps, along, options.sigma_vertical_mps])[self.rows] ** 2
         )
         self._excess: deque[NDArray[np.float64]] = deque(maxlen=options.adaptive_window)
         self._index = 0
@@ -283,6 +307,8 @@ class Odometer(Plugin):
         blocks = [
             StateBlock(f"{self.name}.mounting_angles", ("x", "y", "z"), (sig,) * 3, unit="deg")
         ]
+        if self.options.max_speed_mps is not None:
+            blocks.append(self._speed_block(self.options.max_speed_mps))
         if self.use_speed:
             blocks.append(
                 StateBlock(
@@ -303,6 +329,22 @@ class Odometer(Plugin):
                 )
             )
         return tuple(blocks)
+
+    def _speed_block(self, max_speed: float) -> StateBlock:
+        """The machine's speed along the track u (mode ``motion_constraint`` with a top speed):
+        first-order Gauss–Markov, σ_u = v_max/√3 (a speed anywhere in ±v_max), correlation
+        time τ = ``speed_correlation_time_s``, driving noise 2σ_u²/τ. The along-track row of
+        the constraint then reads ``ṽ^m_y = u``: the SINS speed is the machine's, up to the
+        cutting vibration (that row takes the lateral σ).
+
+        Without an odometer nothing else observes that speed, and a SINS left to drift along
+        the track made the constraint's attitude columns a false heading fix. Why a state and
+        not a bound applied at each epoch: ``docs/design/2026-11-27-speed-state.md``."""
+        sigma = max_speed / math.sqrt(3.0)
+        tau = self.options.speed_correlation_time_s
+        return StateBlock(
+            f"{self.name}.speed", ("u",), (sigma,), (2.0 * sigma**2 / tau,), tau, unit="m_s"
+        )
 
     def epochs(self) -> NDArray[np.float64]:
         """Odometer times, or a regular grid on the IMU clock for the constraint alone."""
@@ -348,6 +390,8 @@ class Odometer(Plugin):
         h[:, ctx.layout.slice(f"{self.name}.mounting_angles")] = -self.c_b_m @ skew(v_b)
         if self.use_speed:
             h[1, scale_states] = -(self.c_b_m @ v_b)[1]
+        if self._speed_state:
+            h[1, ctx.layout.slice(f"{self.name}.speed")] = 1.0
         z, h = z[self.rows], h[self.rows]
         return Measurement(z, h, np.diag(self._noise(z, h, ctx)))
 
