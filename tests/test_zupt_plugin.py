@@ -179,8 +179,9 @@ def test_motion_constraint_while_moving() -> None:
 def test_zero_angular_rate_alone_keeps_the_constraint_at_a_standstill() -> None:
     """``zero_velocity: false``: a "stationary" epoch gives the ZARU rows and, with a motion
     constraint, its rows too (the detector may take a creeping machine for a stop: the
-    constraint and a zero turn rate hold either way, a zero velocity would not); without the
-    ZARU the option is refused, as it would leave nothing to update."""
+    constraint holds either way, a zero velocity would not); but no ZARU where the filter's
+    own velocity is clear of zero (a shearer creeping off through the conveyor's snake turns);
+    without the ZARU the option is refused, as it would leave nothing to update."""
     rec = static_recording(spec={**SEED002_SPEC, "gyro_bias_deg_h": 720.0})
     plugin = Zupt(
         "zupt",
@@ -199,6 +200,19 @@ def test_zero_angular_rate_alone_keeps_the_constraint_at_a_standstill() -> None:
     bare = Zupt("zupt", Zupt.Options(zero_velocity=False, zero_angular_rate=True), rec)
     bare_m = bare.measure(50, perturbed_context(layout_with(()), np.zeros(15)))
     assert bare_m is not None and bare_m.z.shape == (3,)
+    # A velocity the filter knows to 1 cm/s shows the machine moving: no ZARU then.
+    known = np.eye(layout.dim) * 1e-4
+    moving = perturbed_context(layout, np.zeros(layout.dim), velocity=velocity, covariance=known)
+    m = plugin.measure(50, moving)
+    assert m is not None and m.z.shape == (2,)
+    np.testing.assert_allclose(m.z, velocity[[0, 2]], atol=1e-12)
+    still = replace(moving, velocity=np.array([0.01, -0.01, 0.0]))  # within 3σ of zero
+    m = plugin.measure(50, still)
+    assert m is not None and m.z.shape == (5,)
+    bare_ctx = perturbed_context(
+        layout_with(()), np.zeros(15), velocity=velocity, covariance=np.eye(15) * 1e-4
+    )
+    assert bare.measure(50, bare_ctx) is None
     with pytest.raises(PluginError, match="zero_velocity: false leaves nothing"):
         create_plugin("zupt", "z", {"zero_velocity": False}, rec, ("plugins", 0))
 

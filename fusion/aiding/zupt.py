@@ -70,8 +70,9 @@ turn either, so the gyro mean since the previous epoch is the earth rate plus th
 With ``zero_velocity: false`` the epoch gives the ZARU without the zero velocity (and the
 motion constraint, when one is configured, at every epoch): for a machine that can creep too
 smoothly for the IMU to tell it from a stop (a shearer hauling at a few m/min without
-cutting) but never turns or slides sideways at that pace, so that a wrong "stationary" costs
-nothing, where a zero velocity would hold the position while the machine drives on.
+cutting), where a zero velocity would hold the position while the machine drives on. Such a
+machine may still turn (creeping off a face-end stop through the conveyor's snake), so the
+ZARU is left out wherever the filter's own velocity is clear of zero (:func:`_moving`).
 
 Epochs and delay: epochs are a regular grid at ``update_rate_hz`` on the IMU clock; the epoch at
 ``t`` uses the label of the last IMU sample at or before ``t``. In causal mode that label is
@@ -300,6 +301,31 @@ def _quiet(x: NDArray[np.float64], sigma: float, size: int, causal: bool) -> NDA
     return np.asarray(scatter <= chi2.ppf(1.0 - SCATTER_FALSE_ALARM, 3 * (size - 1)))
 
 
+MOVING_PROBABILITY = 0.999
+"""A SINS velocity beyond this quantile of χ²(3) under its own covariance is a moving machine."""
+
+
+def _moving(ctx: MeasurementContext) -> bool:
+    """Whether the SINS velocity is clear of zero under its own covariance,
+    ``vᵀ P_v⁻¹ v > χ²₃(`` :data:`MOVING_PROBABILITY` ``)``: the filter knows the machine moves.
+
+    Without a zero velocity the detector's "stationary" may be a slow haul, and a shearer
+    creeping off from a face-end stop through the snake of the conveyor turns while the IMU
+    shows no acceleration: on a random world it started at 0.01 m/s² and turned at up to
+    146 °/h within 13 s, and ZARUs at that "standstill" walked the vertical gyro bias 146 °/h,
+    the heading then ran 30° off and the UWB-aided filter diverged. Where an aiding source
+    (UWB) knows the velocity to millimetres per second, it shows the start within a second;
+    where nothing does (the constraint alone), the test never fires.
+    """
+    rows = ctx.layout.slice(VELOCITY)
+    v = ctx.velocity
+    try:
+        statistic = float(v @ np.linalg.solve(ctx.covariance[rows, rows], v))
+    except np.linalg.LinAlgError:
+        return False
+    return statistic > float(chi2.ppf(MOVING_PROBABILITY, 3))
+
+
 class ZuptOptions(PluginOptions):
     """Options of the ZUPT plugin (thresholds left out default from physics)."""
 
@@ -470,6 +496,9 @@ class Zupt(Plugin):
         zaru = self.zero_rate.measure(t - 1.0 / self.options.update_rate_hz, t, ctx)
         if self.options.zero_velocity:
             return zupt.stacked_with(zaru)
-        # The detector may be wrong about a creeping machine: the constraint holds either way.
+        # The detector may be wrong about a creeping machine: the constraint holds either way,
+        # and the ZARU only while the filter's own velocity does not show it moving.
         constraint = self.constraint.measure(index, ctx) if self.constraint is not None else None
+        if _moving(ctx):
+            return constraint
         return zaru if constraint is None else constraint.stacked_with(zaru)
