@@ -96,6 +96,7 @@ from fusion.error_model import POSITION, StateLayout
 from fusion.fault_detection import ISOLATE, READMIT, FaultEvent, FaultMonitor
 from fusion.filter_bank import COMMON
 from fusion.kalman import KalmanFilter, UpdateResult, cholesky_solve
+from fusion.lock import inflation_variances
 
 LAST_HOLDER = "kept in the fusion while no other local holds the SINS"
 """Appended to an isolation's reason when the local is the only one that holds the SINS: it
@@ -525,10 +526,12 @@ class FederatedFilter:
     def inflate_common(self, factor: float) -> None:
         """Add ``(factor − 1)`` times the fused common variances as uncorrelated process noise
         (an identity time update: every local and the master take their shares of it, as the
-        centralized filter's :meth:`fusion.kalman.KalmanFilter.inflate` does at once)."""
+        centralized filter does at once; :func:`fusion.lock.inflation_variances`)."""
         dim = self.layout.dim
         noise = np.zeros((dim, dim))
-        noise[COMMON, COMMON] = np.diag((factor - 1.0) * np.diagonal(self.common_covariance()))
+        noise[COMMON, COMMON] = np.diag(
+            inflation_variances(np.diagonal(self.common_covariance()), factor)
+        )
         self.predict(np.eye(dim), noise)
 
     def common_covariance(self) -> NDArray[np.float64]:

@@ -23,6 +23,7 @@ from numpy.typing import NDArray
 from fusion.error_model import POSITION, StateLayout
 from fusion.fault_detection import FaultEvent
 from fusion.kalman import KalmanFilter, UpdateResult
+from fusion.lock import inflation_variances
 
 COMMON = slice(0, 15)
 
@@ -94,8 +95,9 @@ class FilterBank(Protocol):
         them) at zero with ``covariance``, uncorrelated with everything else."""
 
     def inflate_common(self, factor: float) -> None:
-        """Multiply the variances of the common (SINS) states by ``factor`` ≥ 1, the increase
-        added as uncorrelated noise (:meth:`fusion.kalman.KalmanFilter.inflate`)."""
+        """Multiply the variances of the common (SINS) states by ``factor`` ≥ 1, the attitude's
+        up to a bound, the increase added as uncorrelated noise
+        (:func:`fusion.lock.inflation_variances`)."""
 
     @property
     def smoothing_dim(self) -> int:
@@ -193,7 +195,7 @@ class CentralizedFilter:
 
     def inflate_common(self, factor: float) -> None:
         """See :class:`FilterBank`."""
-        self.kf.inflate(COMMON, factor)
+        self.kf.add_variances(COMMON, inflation_variances(np.diagonal(self.kf.P)[COMMON], factor))
 
     @property
     def smoothing_dim(self) -> int:

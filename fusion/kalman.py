@@ -314,16 +314,16 @@ class KalmanFilter:
         self.P[np.ix_(indices, indices)] = covariance
         self.columns[indices, :] = 0.0
 
-    def inflate(self, indices: slice | NDArray[np.intp], factor: float) -> None:
-        """Multiply the variances of states ``indices`` by ``factor`` ≥ 1 by adding
-        ``(factor − 1) P_ii`` to each as uncorrelated noise: the covariances stay, so the
-        correlations shrink by √factor. Scaling the whole block instead (``D P D``) kept the
-        tight velocity–attitude correlations of a converged SINS at full strength: the first
-        zero velocity accepted after the inflation swung the attitude and the next ones were
-        rejected at ten times their σ."""
-        added = np.zeros(self.dim)
-        added[indices] = (factor - 1.0) * np.diagonal(self.P)[indices]
-        self.P = self.P + np.diag(added)
+    def add_variances(self, indices: slice | NDArray[np.intp], added: NDArray[np.float64]) -> None:
+        """Add ``added`` to the variances of states ``indices`` as uncorrelated noise: the
+        covariances stay, so the correlations shrink (an inflation, :mod:`fusion.lock`).
+        Scaling the whole block instead (``D P D``) kept the tight velocity–attitude
+        correlations of a converged SINS at full strength: the first zero velocity accepted
+        after the inflation swung the attitude and the next ones were rejected at ten times
+        their σ."""
+        diagonal = np.zeros(self.dim)
+        diagonal[indices] = added
+        self.P = self.P + np.diag(diagonal)
 
     def condition(self, index: int, value: float) -> None:
         """Condition on state ``index`` being exactly ``value``: an update with H = e_indexᵀ and

@@ -59,6 +59,23 @@ MAX_FADING = 1e4
 which no SINS covariance can absorb."""
 
 
+MAX_INFLATED_ATTITUDE_SIGMA = math.radians(30.0)
+"""Largest attitude σ an inflation gives: the error state is a small angle, and beyond some
+tens of degrees its first-order model describes nothing (a ×1000 inflation gave a yaw σ of
+3000° and sent a UWB-aided filter 2.8·10⁷ m off)."""
+
+
+def inflation_variances(variances: NDArray[np.float64], factor: float) -> NDArray[np.float64]:
+    """The variances to add to the 15 common (SINS) states, in layout order, to multiply
+    ``variances`` by ``factor``: ``(factor − 1) P_ii``, the attitude's only up to a σ of
+    :data:`MAX_INFLATED_ATTITUDE_SIGMA` (an attitude σ already beyond it stays)."""
+    added = (factor - 1.0) * np.asarray(variances, dtype=float)
+    attitude = slice(3, 6)
+    room = np.maximum(MAX_INFLATED_ATTITUDE_SIGMA**2 - variances[attitude], 0.0)
+    added[attitude] = np.minimum(added[attitude], room)
+    return added
+
+
 def fading_factor(
     innovation: NDArray[np.float64], predicted: NDArray[np.float64], noise: NDArray[np.float64]
 ) -> float:

@@ -13,7 +13,15 @@ from fusion.config import load_config
 from fusion.engine import Engine, _holds
 from fusion.error_model import GYRO_BIAS, POSITION, VELOCITY
 from fusion.kalman import KalmanFilter
-from fusion.lock import LOST_LOCK, MAX_FADING, REACQUIRE, LockMonitor, fading_factor
+from fusion.lock import (
+    LOST_LOCK,
+    MAX_FADING,
+    MAX_INFLATED_ATTITUDE_SIGMA,
+    REACQUIRE,
+    LockMonitor,
+    fading_factor,
+    inflation_variances,
+)
 from fusion.metrics import interpolate_truth
 from fusion.recording import read_recording
 from fusion.sim.simulate import simulate
@@ -101,12 +109,25 @@ def test_inflation_adds_uncorrelated_variance_to_the_block() -> None:
     kf = KalmanFilter(np.zeros(6), p, stored_errors=2)
     kf.columns = rng.normal(size=(6, 2))
     columns = kf.columns.copy()
-    kf.inflate(slice(0, 3), 9.0)
+    kf.add_variances(slice(0, 3), 8.0 * np.diagonal(kf.P)[:3])
     assert np.allclose(np.diagonal(kf.P)[:3], 9.0 * np.diagonal(p)[:3])
     off_diagonal = ~np.eye(6, dtype=bool)
     assert np.allclose(kf.P[off_diagonal], p[off_diagonal]) and np.allclose(kf.P[3:, 3:], p[3:, 3:])
     assert np.allclose(kf.columns, columns)
     assert np.linalg.eigvalsh(kf.P).min() >= np.linalg.eigvalsh(p).min() - 1e-12
+
+
+def test_inflation_stops_the_attitude_at_its_bound() -> None:
+    """Every common variance grows by the factor, the attitude's only up to a σ of
+    MAX_INFLATED_ATTITUDE_SIGMA, and one already beyond it is left as it is."""
+    variances = np.full(15, 1e-4)
+    variances[5] = (2.0 * MAX_INFLATED_ATTITUDE_SIGMA) ** 2
+    added = inflation_variances(variances, MAX_FADING)
+    np.testing.assert_allclose(added[[0, 1, 2, 6, 7, 8, 9, 14]], (MAX_FADING - 1.0) * 1e-4)
+    np.testing.assert_allclose(variances[3:5] + added[3:5], MAX_INFLATED_ATTITUDE_SIGMA**2)
+    assert added[5] == 0.0
+    small = inflation_variances(variances, 2.0)
+    np.testing.assert_allclose(small[3:5], 1e-4)
 
 
 def test_a_second_lost_lock_inflates_only_after_the_lock_came_back() -> None:
