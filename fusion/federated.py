@@ -524,9 +524,10 @@ class FederatedFilter:
         self._fused = None
 
     def inflate_common(self, factor: float) -> None:
-        """Add ``(factor − 1)`` times the fused common variances as uncorrelated process noise
-        (an identity time update: every local and the master take their shares of it, as the
-        centralized filter does at once; :func:`fusion.lock.inflation_variances`)."""
+        """Add the inflation of the fused common variances by ``factor``
+        (:func:`fusion.lock.inflation_variances`) as uncorrelated process noise: an identity
+        time update, of which every local and the master take their shares, as the centralized
+        filter takes it at once."""
         dim = self.layout.dim
         noise = np.zeros((dim, dim))
         noise[COMMON, COMMON] = np.diag(

@@ -18,8 +18,9 @@ constraint) gets a ``lost lock`` line, and the variances of the SINS states are 
 the fading factor λ of the last rejected innovation (:func:`fading_factor`): the smallest λ with
 ``νᵀ (λ H P Hᵀ + R)⁻¹ ν = m``, the factor that makes that innovation a 1-σ one (the
 fading-memory step; Fagin 1964; Xia, Rao, Ying & Shen, *Adaptive fading Kalman filter with an
-application*, Automatica 1994), at most :data:`MAX_FADING`. The increase is added as
-uncorrelated noise (:meth:`fusion.kalman.KalmanFilter.inflate`), not as ``λ P``: the
+application*, Automatica 1994), at most :data:`MAX_FADING`, the attitude's only up to a σ of
+:data:`MAX_INFLATED_ATTITUDE_SIGMA` (:func:`inflation_variances`). The increase is added as
+uncorrelated noise (:meth:`fusion.kalman.KalmanFilter.add_variances`), not as ``λ P``: the
 velocity–attitude correlations of a converged SINS, kept at full strength, let the first zero
 velocity after the inflation swing the attitude. A SINS whose gyro bias is several
 times its prior (a harsh world's 2700 °/h against 720 °/h) otherwise tilts faster than its
