@@ -337,9 +337,10 @@ class Odometer(Plugin):
         the constraint then reads ``ṽ^m_y = u``: the SINS speed is the machine's, up to the
         cutting vibration (that row takes the lateral σ).
 
-        Without an odometer nothing else observes that speed, and a SINS left to drift along
-        the track made the constraint's attitude columns a false heading fix. Why a state and
-        not a bound applied at each epoch: ``docs/design/2026-11-27-speed-state.md``."""
+        Without an odometer nothing else observes that speed: the SINS drifted along the track
+        at its accelerometer bias, metres per second, and once the bends of the track had seen
+        some of it the filter took its velocity for known. Why a state and not a bound applied
+        at each epoch: ``docs/design/2026-11-27-speed-state.md``."""
         sigma = max_speed / math.sqrt(3.0)
         tau = self.options.speed_correlation_time_s
         return StateBlock(
