@@ -40,6 +40,8 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
+from fusion.error_model import ATTITUDE, COMMON_BLOCKS
+
 LOST_LOCK, REACQUIRE = "lost lock", "reacquire"
 
 
@@ -71,7 +73,7 @@ def inflation_variances(variances: NDArray[np.float64], factor: float) -> NDArra
     ``variances`` by ``factor``: ``(factor − 1) P_ii``, the attitude's only up to a σ of
     :data:`MAX_INFLATED_ATTITUDE_SIGMA` (an attitude σ already beyond it stays)."""
     added = (factor - 1.0) * np.asarray(variances, dtype=float)
-    attitude = slice(3, 6)
+    attitude = slice(3 * COMMON_BLOCKS.index(ATTITUDE), 3 * COMMON_BLOCKS.index(ATTITUDE) + 3)
     room = np.maximum(MAX_INFLATED_ATTITUDE_SIGMA**2 - variances[attitude], 0.0)
     added[attitude] = np.minimum(added[attitude], room)
     return added

@@ -307,8 +307,8 @@ class Odometer(Plugin):
         blocks = [
             StateBlock(f"{self.name}.mounting_angles", ("x", "y", "z"), (sig,) * 3, unit="deg")
         ]
-        if self.options.max_speed_mps is not None:
-            blocks.append(self._speed_block(self.options.max_speed_mps))
+        if self._speed_state:
+            blocks.append(self._speed_block())
         if self.use_speed:
             blocks.append(
                 StateBlock(
@@ -330,7 +330,7 @@ class Odometer(Plugin):
             )
         return tuple(blocks)
 
-    def _speed_block(self, max_speed: float) -> StateBlock:
+    def _speed_block(self) -> StateBlock:
         """The machine's speed along the track u (mode ``motion_constraint`` with a top speed):
         first-order Gauss–Markov, σ_u = v_max/√3 (a speed anywhere in ±v_max), correlation
         time τ = ``speed_correlation_time_s``, driving noise 2σ_u²/τ. The along-track row of
@@ -341,7 +341,8 @@ class Odometer(Plugin):
         at its accelerometer bias, metres per second, and once the bends of the track had seen
         some of it the filter took its velocity for known. Why a state and not a bound applied
         at each epoch: ``docs/design/2026-11-27-speed-state.md``."""
-        sigma = max_speed / math.sqrt(3.0)
+        assert self.options.max_speed_mps is not None
+        sigma = self.options.max_speed_mps / math.sqrt(3.0)
         tau = self.options.speed_correlation_time_s
         return StateBlock(
             f"{self.name}.speed", ("u",), (sigma,), (2.0 * sigma**2 / tau,), tau, unit="m_s"

@@ -303,6 +303,7 @@ def _quiet(x: NDArray[np.float64], sigma: float, size: int, causal: bool) -> NDA
 
 MOVING_PROBABILITY = 0.999
 """A SINS velocity beyond this quantile of χ²(3) under its own covariance is a moving machine."""
+_MOVING_THRESHOLD = float(chi2.ppf(MOVING_PROBABILITY, 3))
 
 
 def _moving(ctx: MeasurementContext) -> bool:
@@ -323,7 +324,7 @@ def _moving(ctx: MeasurementContext) -> bool:
         statistic = float(v @ np.linalg.solve(ctx.covariance[rows, rows], v))
     except np.linalg.LinAlgError:
         return False
-    return statistic > float(chi2.ppf(MOVING_PROBABILITY, 3))
+    return statistic > _MOVING_THRESHOLD
 
 
 class ZuptOptions(PluginOptions):
