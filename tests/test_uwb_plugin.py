@@ -77,9 +77,11 @@ def _recording(
     ranges: list[tuple[str, float]],
     *,
     with_uwb: bool = True,
+    face: dict[str, Any] | None = None,
 ) -> Recording:
-    """An in-memory recording whose ``uwb.csv`` holds ``ranges`` at t = 0.5, 0.51, …"""
-    streams: dict[str, Any] = {}
+    """An in-memory recording whose ``uwb.csv`` holds ``ranges`` at t = 0.5, 0.51, … (and
+    meta.yaml's ``face`` section, if given)."""
+    streams: dict[str, Any] = {} if face is None else {"face": face}
     if with_uwb:
         streams["uwb"] = {
             "rate_hz": 40.0 * len(anchors),  # all anchors together: 40 Hz each
@@ -255,6 +257,48 @@ def test_max_range_produces_nothing() -> None:
     for a, m in got.items():
         assert (m is None) == (dist[a] > limit), a
         assert m is None or isinstance(m, Measurement)
+
+
+# A row of three anchors across the face, 2 m beyond its end B, at slightly different heights:
+# the ranges of a tag on the face fit it and its mirror image beyond the end equally well.
+ROW_ANCHORS = {"B1": (-10.0, 102.0, 2.0), "B2": (0.0, 102.0, 2.3), "B3": (12.0, 102.0, 1.8)}
+FACE_END_B = {"ends_enu_m": [[0.0, 0.0, 0.0], [0.0, 100.0, 0.0]]}
+ON_FACE = np.array([1.5, 80.0, 0.0])
+
+
+def _reacquired(face: dict[str, Any] | None, guess: np.ndarray, sigma: float) -> Any:
+    """``UwbRanges.reacquire`` at 3.4 s, after 2.9 s of exact ranges to a tag at rest at
+    ON_FACE (no lever arm), from a SINS at ``guess`` with a position σ of ``sigma``."""
+    ids = list(ROW_ANCHORS)
+    ranges = [
+        (a, float(np.linalg.norm(ON_FACE - np.array(ROW_ANCHORS[a]))))
+        for a in (ids[k % 3] for k in range(290))
+    ]
+    rec = _recording(ROW_ANCHORS, (0.0, 0.0, 0.0), ranges, face=face)
+    plugin = UwbRanges("uwb", UwbOptions(), rec)
+    layout = layout_with(plugin.state_blocks())
+    covariance = layout.initial_covariance()
+    covariance[6:9, 6:9] = sigma**2 * np.eye(3)
+    ctx = perturbed_context(
+        layout, np.zeros(layout.dim), t=3.4, position_enu=guess, covariance=covariance
+    )
+    return plugin.reacquire(3.4, ctx)
+
+
+def test_reacquisition_refuses_a_mirror_image_nothing_tells_apart() -> None:
+    """A filter lost by more than the tag's distance to the anchors' plane is not put on
+    whichever of the two solutions lies nearer to it (on random world 6 of sins_uwb that was
+    the mirror image, 30 m beyond the face end, followed at a σ of 2 cm for 1000 s): the face
+    rules the mirror out; without a face, only a prior that tells the two apart does."""
+    mirror = ON_FACE + np.array([0.0, 2.0 * (102.0 - ON_FACE[1]), 0.0])
+    lost = mirror + np.array([5.0, 3.0, 0.0])  # nearer the mirror, σ 100 m
+    fix = _reacquired(FACE_END_B, lost, 100.0)
+    assert fix is not None
+    np.testing.assert_allclose(fix.position_enu, ON_FACE, atol=0.02)
+    assert _reacquired(None, lost, 100.0) is None
+    held = _reacquired(None, ON_FACE + np.array([1.0, -2.0, 0.0]), 3.0)
+    assert held is not None
+    np.testing.assert_allclose(held.position_enu, ON_FACE, atol=0.02)
 
 
 def test_bad_input_is_named() -> None:

@@ -125,6 +125,7 @@ from pydantic import Field
 
 from fusion.attitude import skew
 from fusion.error_model import ATTITUDE, POSITION
+from fusion.face import FaceLine
 from fusion.kalman import CorrelatedNoise
 from fusion.plugin import Measurement, MeasurementContext, Plugin, PluginOptions, StoredEstimate
 from fusion.recording import Recording
@@ -231,15 +232,14 @@ class Cpoem(Plugin):
                 recording.meta.name,
             )
         self.ends_enu = np.array(face.ends_enu_m, dtype=float)
-        along = self.ends_enu[1] - self.ends_enu[0]
-        length = float(np.hypot(along[0], along[1]))
+        self.face = FaceLine.from_ends(self.ends_enu)
+        length = self.face.length
         if length <= 2.0 * options.interval_m:
             raise ValueError(
                 f"plugin {name!r} (cpoem): the surveyed face ends are {length:.2f} m apart, not"
                 f" enough for stations every interval_m = {options.interval_m} m"
             )
-        self.face_along_enu = np.array([along[0], along[1], 0.0]) / length
-        self.face_normal_enu = np.array([along[1], -along[0], 0.0]) / length
+        self.face_normal_enu = self.face.normal
         count = math.ceil(length / options.interval_m)
         self.stations = np.concatenate([options.interval_m * np.arange(count), [length]])
         odo = recording.odometer
@@ -289,7 +289,7 @@ class Cpoem(Plugin):
 
     def along_face(self, position_enu: NDArray[np.float64]) -> float:
         """Along-face coordinate s of an origin-ENU position (m from end A)."""
-        return float(self.face_along_enu @ (position_enu - self.ends_enu[0]))
+        return self.face.along_face(position_enu)
 
     def measure(self, index: int, ctx: MeasurementContext) -> Measurement | None:
         """A visit's point predicted from its previous visit plus the advance, or None."""

@@ -53,7 +53,12 @@ Tightly coupled ranges (:class:`UwbRanges`)
     is counted there, and so does a near anchor's reading when the SINS has drifted far: its
     rejections tell the engine that the lock is lost (:mod:`fusion.lock`), and
     :meth:`UwbRanges.reacquire` puts the filter back at a least-squares fix of the last
-    ranges.
+    ranges — never at one of two mirror solutions (see "Mirror solutions" below) that neither
+    the face nor the SINS's own covariance tells apart: the shearer is on its face, so a
+    solution farther than ``face_margin_m`` beyond a surveyed face end (meta.yaml
+    ``face.ends_enu_m``) is the mirror image. A filter put on the mirror image of a row of
+    anchors across the face end follows it with centimetres of σ while the tag moves the
+    other way (random world 6 at its own length: 21 m off within 12 m of an anchor).
 
     Range bias (``range_bias: true``): one state per anchor, block ``<name>.range_bias``, the
     bias ``b_i`` itself (m, never fed back), prior σ ``range_bias_sigma_m``; a first-order
@@ -157,6 +162,7 @@ from pydantic import BaseModel, ConfigDict, Field, model_validator
 from fusion.attitude import dcm_from_euler, dcm_from_quat, quat_from_rotvec
 from fusion.earth import LocalFrame
 from fusion.error_model import ATTITUDE, POSITION, VELOCITY, StateBlock
+from fusion.face import FaceLine
 from fusion.innovations import InnovationLog
 from fusion.kalman import chi2_threshold
 from fusion.lock import Reacquisition
@@ -235,6 +241,13 @@ class UwbOptions(PluginOptions):
         default_factory=LeastSquaresOptions,
         description="the UWB-only baseline (filter.architecture: standalone)",
     )
+    face_margin_m: float | None = Field(
+        10.0,
+        ge=0,
+        description="how far beyond a surveyed face end (meta.yaml face.ends_enu_m) the tag can"
+        " be along the face — overrun, lever arm, a face end not square to the face; a"
+        " re-acquisition fix farther out is a mirror image, not the tag (None: not used)",
+    )
 
     @model_validator(mode="after")
     def _one_bias_process(self) -> UwbOptions:
@@ -275,6 +288,7 @@ class UwbRanges(Plugin):
         self.beta = np.full(n, self._beta0)
         self.t_last = np.full(n, np.nan)
         self._screen = chi2_threshold(1, options.adaptive_screen_probability)
+        self.face = FaceLine.from_meta(recording.meta.face)
 
     def standalone_solution(self, gate_probability: float | None, log: InnovationLog) -> Solution:
         """The UWB-only least-squares baseline with ``options.least_squares``."""
@@ -315,14 +329,18 @@ class UwbRanges(Plugin):
         Two least-squares fixes (:func:`_gauss_newton`, the tag taken at rest over each) of the
         ranges in the two halves of the last ``2 ×`` :data:`REACQUIRE_WINDOW_S`, each from at
         least three anchors: the position is the later one, the velocity their difference over
-        their spacing. A fit starts from the SINS position pulled to within the anchors' reach.
+        their spacing. A fit starts from the SINS position pulled to within the anchors' reach
+        (:meth:`_fix`: None while the ranges cannot tell the tag from its mirror image).
         The position covariance adds the tag's travel over a window and the lever arm's turn
         with an attitude that coasted too (:data:`REACQUIRE_SPREAD_M` per axis each).
         """
         window = REACQUIRE_WINDOW_S
-        arm_enu = ctx.rotation_to_local.T @ ctx.c_b_n @ self.lever_arm
-        earlier = self._fix(t - 2 * window, t - window, ctx.position_enu + arm_enu)
-        later = self._fix(t - window, t, ctx.position_enu + arm_enu)
+        rot = ctx.rotation_to_local
+        arm_enu = rot.T @ ctx.c_b_n @ self.lever_arm
+        pos = ctx.layout.slice(POSITION)
+        prior = (ctx.position_enu + arm_enu, rot.T @ ctx.covariance[pos, pos] @ rot)
+        earlier = self._fix(t - 2 * window, t - window, prior)
+        later = self._fix(t - window, t, prior)
         if earlier is None or later is None:
             return None
         (p0, c0), (p1, c1) = earlier, later
@@ -342,29 +360,54 @@ class UwbRanges(Plugin):
         return sigma > max(1.0, 0.1 * float(np.linalg.norm(ctx.position_enu - anchor)))
 
     def _fix(
-        self, t0: float, t1: float, guess: NDArray[np.float64]
+        self, t0: float, t1: float, prior: tuple[NDArray[np.float64], NDArray[np.float64]]
     ) -> tuple[NDArray[np.float64], NDArray[np.float64]] | None:
-        """Least-squares tag position from the ranges in (t0, t1], or None."""
+        """Least-squares tag position from the ranges in (t0, t1], or None when they give none
+        or cannot tell it from its mirror image.
+
+        ``prior`` is the SINS's tag position and its covariance (origin ENU). Of the solutions
+        that fit (three anchors, or more nearly in one plane, fit a point and its mirror image
+        about equally well), those beyond ``face_margin_m`` of the surveyed face ends are
+        dropped — the shearer is on its face —, and of the rest the one nearest the prior in
+        its metric is kept, if the prior makes any other at least ``margin`` (χ²) less likely;
+        otherwise the fix is ambiguous and none is given: a filter put on the mirror image
+        then follows it, with centimetre σ, while the tag moves the other way.
+        """
         lo = int(np.searchsorted(self.data.t, t0, side="right"))
         hi = int(np.searchsorted(self.data.t, t1, side="right"))
         index = self.data.anchor_index[lo:hi]
         if np.unique(index).size < 3:
             return None
-        anchors = self.anchors[index]
+        anchors, ranges = self.anchors[index], self.data.range[lo:hi]
+        guess, guess_covariance = prior
         centre = anchors.mean(axis=0)
-        reach = float(np.max(self.data.range[lo:hi]))
+        reach = float(np.max(ranges))
         offset = guess - centre
         start = centre + offset * min(1.0, reach / max(float(np.linalg.norm(offset)), 1e-9))
         sigma = float(np.max(self.noise_sigma()))
         options = self.options.least_squares.model_copy(update={"sigma_range_m": sigma})
-        found = _solutions(anchors, self.data.range[lo:hi], start, None, options, sigma)
+        found = _solutions(anchors, ranges, start, None, options, sigma)
         if not found:
             return None
-        # Of the fit and its mirror image (three anchors, or more in one plane), the one
-        # nearer the SINS: it is lost by metres, not by the anchors' distance to their plane.
         margin = chi2_threshold(1, self.options.adaptive_screen_probability)
-        position, covariance, _ = _plausible(found, margin, guess)[0]
-        return position, covariance
+        candidates = _plausible(found, margin, guess)
+        best, covariance, cost = candidates[0]
+        mirror = _mirrored(best, anchors)
+        if _chi2(mirror, anchors, ranges, None, sigma) - cost <= margin:
+            candidates.append((mirror, covariance, cost))
+        if self.face is not None and self.options.face_margin_m is not None:
+            on_face = [c for c in candidates if self.face.reaches(c[0], self.options.face_margin_m)]
+            candidates = on_face
+        if not candidates:
+            return None
+        metric = np.linalg.inv(guess_covariance + covariance)
+        distance2 = [float((c[0] - guess) @ metric @ (c[0] - guess)) for c in candidates]
+        kept = int(np.argmin(distance2))
+        for k, (position, _, _) in enumerate(candidates):
+            distinct = _beyond_fit(position - candidates[kept][0], covariance)
+            if distinct and distance2[k] - distance2[kept] <= margin:
+                return None
+        return candidates[kept][0], candidates[kept][1]
 
     def noise_sigma(self) -> NDArray[np.float64]:
         """Current range-noise σ per anchor (m): the configured one, or the learned one."""
@@ -708,10 +751,16 @@ class _Branch:
         if float(np.linalg.norm(rival - prediction)) >= nearest + 3.0 * math.sqrt(spread):
             return fit.covariance
         offset = rival - fit.position
-        apart2 = float(offset @ offset)
-        if apart2**2 > 9.0 * float(offset @ fit.covariance @ offset):
+        if _beyond_fit(offset, fit.covariance):
             self.known = False
         return fit.covariance + 0.5 * np.outer(offset, offset)
+
+
+def _beyond_fit(offset: NDArray[np.float64], covariance: NDArray[np.float64]) -> bool:
+    """Two solutions ``offset`` apart are more than 3σ of a fit of ``covariance`` apart (σ
+    along the offset): the ranges alone tell which of them the tag is at, if anything does."""
+    apart2 = float(offset @ offset)
+    return apart2**2 > 9.0 * float(offset @ covariance @ offset)
 
 
 def _chi2(
