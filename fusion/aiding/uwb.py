@@ -395,9 +395,9 @@ class UwbRanges(Plugin):
         mirror = _mirrored(best, anchors)
         if _chi2(mirror, anchors, ranges, None, sigma) - cost <= margin:
             candidates.append((mirror, covariance, cost))
-        if self.face is not None and self.options.face_margin_m is not None:
-            on_face = [c for c in candidates if self.face.reaches(c[0], self.options.face_margin_m)]
-            candidates = on_face
+        margin_m = self.options.face_margin_m
+        if self.face is not None and margin_m is not None:
+            candidates = [c for c in candidates if self.face.reaches(c[0], margin_m)]
         if not candidates:
             return None
         metric = np.linalg.inv(guess_covariance + covariance)
@@ -757,8 +757,8 @@ class _Branch:
 
 
 def _beyond_fit(offset: NDArray[np.float64], covariance: NDArray[np.float64]) -> bool:
-    """Two solutions ``offset`` apart are more than 3σ of a fit of ``covariance`` apart (σ
-    along the offset): the ranges alone tell which of them the tag is at, if anything does."""
+    """Two solutions ``offset`` apart are different places as far as a fit of ``covariance``
+    goes: more than 3σ of it apart, σ taken along the offset."""
     apart2 = float(offset @ offset)
     return apart2**2 > 9.0 * float(offset @ covariance @ offset)
 
