@@ -47,6 +47,11 @@ class FaceLine:
         line = cls.from_ends(np.array(face.ends_enu_m, dtype=float))
         return line if line.length > 0 else None
 
+    @property
+    def azimuth(self) -> float:
+        """Azimuth α of the line from end A to end B (rad, clockwise from north)."""
+        return float(np.arctan2(self.along[0], self.along[1]))
+
     def along_face(self, position_enu: NDArray[np.float64]) -> float:
         """Along-face coordinate s of an origin-ENU position (m from end A)."""
         return float(self.along @ (position_enu - self.end_a))

@@ -203,7 +203,7 @@ def test_h_matches_numerical_differentiation(direction: str, station: int) -> No
     else:  # eq. 6: across row −d nᵀ (u×) = d (u × n)ᵀ, u the body x axis
         u = c_b_n[:, 0]
         np.testing.assert_allclose(
-            m.H[0, 3:6], ADVANCE_M * np.cross(u, plugin.face_normal_enu), atol=1e-6
+            m.H[0, 3:6], ADVANCE_M * np.cross(u, plugin.face.normal), atol=1e-6
         )
 
 
@@ -230,7 +230,7 @@ def test_stored_noise_face_end_chain_and_refresh() -> None:
     m = plugin.measure(station, ctx)
     assert m is not None and m.correlated is not None
     np.testing.assert_array_equal(m.correlated.columns, [12, 13, 14])
-    rows = np.vstack([plugin.face_normal_enu, [0.0, 0.0, 1.0]])
+    rows = np.vstack([plugin.face.normal, [0.0, 0.0, 1.0]])
     np.testing.assert_allclose(m.correlated.mixing, -rows, atol=1e-5)
     stored_cov = rows @ cov[4] @ rows.T
     assert np.all(np.linalg.eigvalsh(m.R - stored_cov) > 0)  # advance, line deviation
@@ -404,7 +404,7 @@ def _across_per_cycle(result: RunResult, rec: Recording, plugin: Cpoem) -> np.nd
     """RMS position error across the face (the surveyed face line's normal) in cycles 1–4."""
     assert rec.truth is not None
     inside, position, *_ = interpolate_truth(rec.truth, result.solution.t)
-    across = (result.solution.position[inside] - position) @ plugin.face_normal_enu
+    across = (result.solution.position[inside] - position) @ plugin.face.normal
     cycle = np.interp(result.solution.t[inside], rec.truth.t, rec.truth.cycle).round()
     return np.array([np.sqrt(np.mean(across[cycle == c] ** 2)) for c in (1, 2, 3, 4)])
 

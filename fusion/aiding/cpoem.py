@@ -239,7 +239,6 @@ class Cpoem(Plugin):
                 f"plugin {name!r} (cpoem): the surveyed face ends are {length:.2f} m apart, not"
                 f" enough for stations every interval_m = {options.interval_m} m"
             )
-        self.face_normal_enu = self.face.normal
         count = math.ceil(length / options.interval_m)
         self.stations = np.concatenate([options.interval_m * np.arange(count), [length]])
         odo = recording.odometer
@@ -477,7 +476,7 @@ class Cpoem(Plugin):
         h3 = np.zeros((3, ctx.layout.dim))
         h3[:, ctx.layout.slice(ATTITUDE)] = -distance * d_direction
         h3[:, ctx.layout.slice(POSITION)] = np.eye(3)
-        rows = np.vstack([rot @ self.face_normal_enu, UP])  # T: across the face and up
+        rows = np.vstack([rot @ self.face.normal, UP])  # T: across the face and up
         offset = (self.along_face(ctx.position_enu) - point.along) * opts.line_slope_sigma
         r = rows @ r3 @ rows.T + offset**2 * np.eye(2)
         correlated = CorrelatedNoise(self._columns(station), -rows @ rot) if point.tracked else None
@@ -506,7 +505,7 @@ class Cpoem(Plugin):
         d_u = skew(u_x)  # u_x(φ) = (I − φ×) u_x = u_x + (u_x×) φ
         if self.options.advance_direction == "attitude":
             return u_x, d_u
-        normal = rot @ self.face_normal_enu
+        normal = rot @ self.face.normal
         across = float(np.hypot(u_x[0], u_x[1]))
         side = 1.0 if normal[:2] @ u_x[:2] >= 0 else -1.0
         direction = side * across * normal + u_x[2] * UP

@@ -102,7 +102,11 @@ class FaceHeading(Plugin):
             t = recording.imu.t
             step = 1.0 / options.check_rate_hz
             self._epochs = np.arange(t[0] + step, t[-1], step)
-        self._last_travel = np.zeros(3)
+        self._start_pass()
+
+    def _start_pass(self) -> None:
+        """Forget where the last update was made (a new pass over the recording)."""
+        self._last_travel: NDArray[np.float64] | None = None
         self._last_index = -1
 
     def _reference(self, recording: Recording, options: FaceHeadingOptions) -> float | None:
@@ -113,7 +117,7 @@ class FaceHeading(Plugin):
                 "plugin %r: meta.yaml has no face.ends_enu_m, so no face heading", self.name
             )
             return None
-        azimuth = math.atan2(line.along[0], line.along[1])
+        azimuth = line.azimuth
         yaw = math.radians(recording.meta.initial.attitude_deg.yaw)
         nearest = min((azimuth, azimuth + math.pi), key=lambda a: abs(float(wrap_angle(yaw - a))))
         if abs(float(wrap_angle(yaw - nearest))) > math.radians(options.max_initial_offset_deg):
@@ -144,10 +148,10 @@ class FaceHeading(Plugin):
         if self.reference is None:
             return None
         if index <= self._last_index:  # a new pass over the recording
-            self._last_index = -1
-        if self._last_index < 0:
-            self._last_travel = ctx.travel.copy()
+            self._start_pass()
         self._last_index = index
+        if self._last_travel is None:
+            self._last_travel = ctx.travel.copy()
         moved = ctx.travel[:2] - self._last_travel[:2]
         if math.hypot(moved[0], moved[1]) < self.options.spacing_m:
             return None

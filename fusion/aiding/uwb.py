@@ -392,8 +392,8 @@ class UwbRanges(Plugin):
         margin = chi2_threshold(1, self.options.adaptive_screen_probability)
         candidates = _plausible(found, margin, guess)
         best, covariance, cost = candidates[0]
-        mirror = _mirrored(best, anchors)
-        if _chi2(mirror, anchors, ranges, None, sigma) - cost <= margin:
+        mirror = _fitting_mirror(best, cost, anchors, ranges, None, sigma, margin)
+        if mirror is not None:
             candidates.append((mirror, covariance, cost))
         margin_m = self.options.face_margin_m
         if self.face is not None and margin_m is not None:
@@ -614,6 +614,23 @@ def _mirrored(point: NDArray[np.float64], anchors: NDArray[np.float64]) -> NDArr
     return point - 2.0 * float((point - centre) @ normal) * normal
 
 
+def _fitting_mirror(
+    point: NDArray[np.float64],
+    cost: float,
+    anchors: NDArray[np.float64],
+    ranges: NDArray[np.float64],
+    height: tuple[float, float] | None,
+    sigma: float,
+    margin: float,
+) -> NDArray[np.float64] | None:
+    """The mirror image of a solution ``point`` of χ² ``cost`` (:func:`_mirrored`), if its own
+    χ² is within ``margin`` of it: a second solution Gauss–Newton may not have found."""
+    mirror = _mirrored(point, anchors)
+    if _chi2(mirror, anchors, ranges, height, sigma) - cost <= margin:
+        return mirror
+    return None
+
+
 _Candidate = tuple[NDArray[np.float64], NDArray[np.float64], float]
 """One Gauss–Newton solution of a window: position, covariance, χ²."""
 
@@ -671,9 +688,8 @@ def _window_fix(
         if gate is None or squared[worst] <= gate:
             rivals = [q for q, _, _ in plausible[1:] if _apart(q, p, options)]
             if not rivals:  # no second minimum found: is the mirror point itself ruled out?
-                q = _mirrored(p, anchors[used])
-                excess = _chi2(q, anchors[used], ranges[used], height, sigma) - cost
-                if excess <= margin and _apart(q, p, options):
+                q = _fitting_mirror(p, cost, anchors[used], ranges[used], height, sigma, margin)
+                if q is not None and _apart(q, p, options):
                     rivals.append(q)
             return _Fit(p, cov, used, squared, rivals[0] if rivals else None)
         used[worst] = False
