@@ -325,8 +325,10 @@ class FilterOptions(_Strict):
         description="keep a turn of the whole trajectory about the vertical unobservable to the"
         " sources that cannot see one (ZUPT, ZARU, odometer, motion constraint): the heading"
         " column of Φ and of their H is constrained (fusion.yaw_nullspace); for MEMS IMUs, which"
-        " cannot find north from the Earth's rate. Off in every shipped config: with a motion"
-        " constraint it was far worse (docs/design/2026-11-27-observability.md)",
+        " cannot find north from the Earth's rate. On in the odometer-only configurations"
+        " (sins_od_ckf, sins_od_cpoem*), whose odometer speed makes the turn direction exact;"
+        " off where the constraint alone gives the velocity, which it then takes for the turn"
+        " direction (docs/design/2026-11-27-observability.md, 2026-11-27-full-length-worlds.md)",
     )
     discretization: Literal["series", "van_loan"] = "series"
     error_model: Literal["full", "low_speed"] = "full"
