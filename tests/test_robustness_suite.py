@@ -122,11 +122,13 @@ def test_smoke_suite_completes_without_a_failed_run(smoke_rows: list[dict[str, A
 @pytest.mark.slow
 @pytest.mark.parametrize("config", ["full_afkf_rts", "sins_od_cpoem_rts"])
 def test_smoothed_is_no_worse_than_forward(config: str, smoke_rows: list[dict[str, Any]]) -> None:
-    """Per configuration, the smoothed horizontal RMS pooled over the worlds and their median
-    are at most the forward ones, and no world's smoothed track is clearly worse than its
-    forward one (10 % + 1 cm: on these 200-s worlds smoothing has next to nothing to add, and a
-    realized smoothed error can exceed the forward one within its σ, e.g. 19 against 15 mm,
-    both consistent)."""
+    """Per configuration, the smoothed horizontal RMS pooled over the worlds (the mean square
+    error an RTS smoother reduces in expectation) is at most the forward one, and no world's
+    smoothed track is clearly worse than its forward one (10 % + 1 cm: on these 200-s worlds
+    smoothing has next to nothing to add, and a realized smoothed error can exceed the forward
+    one within its σ, e.g. 19 against 15 mm, both consistent). The median over the worlds is
+    printed, not asserted: where a pass gives the smoother nothing it is a coin toss
+    (`sins_od_cpoem_rts` 130.35 against 130.31 mm, docs/design/2026-11-27-full-length-worlds.md)."""
     rows = [r for r in smoke_rows if r["method"] == config]
     forward = {r["seed"]: r["horizontal_rms"] for r in rows if r["solution"] == "forward"}
     smoothed = {r["seed"]: r["horizontal_rms"] for r in rows if r["solution"] == "smoothed"}
@@ -137,4 +139,4 @@ def test_smoothed_is_no_worse_than_forward(config: str, smoke_rows: list[dict[st
     print(f"{config}: forward / smoothed h. RMS pooled {quadratic}, median {median}")
     worse = [s for s in sorted(forward) if smoothed[s] > 1.1 * forward[s] + 0.01]
     assert worse == []
-    assert quadratic[1] <= quadratic[0] and median[1] <= median[0]
+    assert quadratic[1] <= quadratic[0]
