@@ -110,6 +110,7 @@ GRADES = tuple(f"par{k}" for k in range(1, 13))
 GRADE_RUNS = 5
 """The IMU-grade sweep (24 rows of 36-min runs) uses at most this many seeds; its table says n."""
 FORWARD, RTS = "sins_od_cpoem", "sins_od_cpoem_rts"
+FORWARD_ROW, SMOOTHED_ROW = f"Forward filter ({FORWARD}, Δ = 2 m)", f"Smoothed ({RTS}, Δ = 2 m)"
 
 
 def _delta(config: str, delta: int) -> Method:
@@ -153,7 +154,7 @@ def seed000_tasks(runs: int, overrides: tuple[str, ...]) -> list[Task]:
 def seed000_tables() -> list[TableSpec]:
     """Table 3 (SEP per cycle), the Δ sweep, RTS on/off per axis, the IMU grades, and Table 3
     on the calibrated IMU."""
-    fwd, smo = f"Forward filter ({FORWARD}, Δ = 2 m)", f"Smoothed ({RTS}, Δ = 2 m)"
+    fwd, smo = FORWARD_ROW, SMOOTHED_ROW
     table3 = _seed000_table3(
         "nominal",
         "seed000-carrier",
@@ -222,7 +223,7 @@ def _seed000_table3(group: str, scenario: str, note: str) -> TableSpec:
         "Traditional method (dead reckoning)",
         "Traditional, estimated parameters compensated",
     )
-    fwd, smo = f"Forward filter ({FORWARD}, Δ = 2 m)", f"Smoothed ({RTS}, Δ = 2 m)"
+    fwd, smo = FORWARD_ROW, SMOOTHED_ROW
     paper: dict[tuple[str, str], float] = {}
     for label, values in (
         (dr, (1.75, 1.99, 2.28, 2.31)),

@@ -326,7 +326,7 @@ class FilterOptions(_Strict):
         " sources that cannot see one (ZUPT, ZARU, odometer, motion constraint): the heading"
         " column of Φ and of their H is constrained (fusion.yaw_nullspace); for MEMS IMUs, which"
         " cannot find north from the Earth's rate. On in the odometer-only configurations"
-        " (sins_od_ckf, sins_od_cpoem*), whose odometer speed makes the turn direction exact;"
+        " (sins_od_ckf, sins_od_cpoem*), whose encoder gives the turn direction its velocity;"
         " off where the constraint alone gives the velocity, which it then takes for the turn"
         " direction (docs/design/2026-11-27-observability.md, 2026-11-27-full-length-worlds.md)",
     )
