@@ -401,6 +401,10 @@ class Engine:
                 t_cov = te
                 if jumps is not None:
                     jumps.step(te, bank)
+            released = self._process_noise(sources[i:j], indices[i:j])
+            if released is not None:  # an identity time update: the smoother's prior has it
+                bank.predict(np.eye(self.layout.dim), released)
+                observed.predict(np.eye(self.layout.dim), released)
             prior = bank.smoothing_state() if smoother is not None else None
             updated = False
             is_output = False
@@ -668,6 +672,22 @@ class Engine:
             bank.faults.extend(e for e in events if e is not None)
         logs[plugin.name].append(t, res, m.suspect)
         return res.accepted
+
+    def _process_noise(
+        self, sources: NDArray[np.integer], indices: NDArray[np.integer]
+    ) -> NDArray[np.float64] | None:
+        """The process noise (full layout) the plugins measured at this instant add
+        (:meth:`fusion.plugin.Plugin.process_noise`), or None."""
+        added = None
+        for src, index in zip(sources.tolist(), indices.tolist(), strict=True):
+            if src < 0:  # outputs, grid and store epochs
+                continue
+            blocks = self.plugins[src].process_noise(index)
+            for block, variances in (blocks or {}).items():
+                if added is None:
+                    added = np.zeros(self.layout.dim)
+                added[self.layout.slice(block)] += variances
+        return None if added is None else np.diag(added)
 
     def _alone(self, src: int, t: float) -> bool:
         """Whether no other plugin had an update accepted within the lock window before ``t``

@@ -228,6 +228,14 @@ class Plugin(ABC):
         ignored."""
         return None
 
+    def process_noise(self, index: int) -> dict[str, NDArray[np.float64]] | None:
+        """Variances to add to state blocks (by name, e.g. ``VELOCITY``) before epoch ``index``
+        is measured: what this sensor's readings show the filter's model missed since its last
+        epoch (a machine that began to move where zero-velocity updates held it still). The
+        engine adds them as an identity time update of every filter, so the federated locals,
+        the smoother and the observability report see process noise. Default: none."""
+        return None
+
     @abstractmethod
     def epochs(self) -> NDArray[np.float64]:
         """Sorted times at which :meth:`measure` is to be called."""
