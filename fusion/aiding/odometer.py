@@ -329,7 +329,9 @@ class Odometer(Plugin):
         reading's, are what they missed. Without the release the filter held its velocity
         within 1 mm/s of zero while the machine crept at 1–2 cm/s and the next readings'
         speed took seconds to pull it: 4 cm off at a σ of 5 mm, and a healthy UWB isolated
-        (full_afkf on a random world with a 72-count/m encoder, three times in 48 min)."""
+        (full_afkf on a random world with a 72-count/m encoder, three times in 48 min).
+        A lone spike that passes the screening's step rule (:mod:`fusion.screening`, at most
+        ``max_acceleration_mps2`` × one raw interval) releases no more than that step."""
         if not self.starts.size or not self.starts[index]:
             return None
         assert self.recording.odometer is not None
