@@ -85,7 +85,7 @@ from pydantic import Field, model_validator
 from fusion.aiding.reference_speed import ReferenceSpeed, reading_noise
 from fusion.aiding.zaru import ZeroAngularRate
 from fusion.attitude import dcm_from_euler, skew
-from fusion.error_model import ATTITUDE, KNOWN_SIGMAS, POSITION, VELOCITY, StateBlock
+from fusion.error_model import ATTITUDE, KNOWN_SIGMAS, VELOCITY, StateBlock
 from fusion.plugin import Measurement, MeasurementContext, Plugin, PluginOptions
 from fusion.recording import Recording
 
@@ -197,12 +197,6 @@ class OdometerOptions(PluginOptions):
     rest_guard_s: float = Field(
         1.0, ge=0, description="standstill this long before a ZARU or ending a slip"
     )
-    release_at_start: bool = Field(
-        True,
-        description="mode odometer: at the first reading that shows motion after a standstill,"
-        " add its speed² to the horizontal velocity variances and its travel² to the"
-        " position's (the creep before it, which zero-speed updates held at zero)",
-    )
     angular_rate_floor_dps: float = Field(
         0.002, ge=0, description="ZARU noise added to the averaged ARW (standstill vibration)"
     )
@@ -291,11 +285,8 @@ class Odometer(Plugin):
         )
         self.at_rest = (
             self._standstill()
-            if self.use_speed and (self.zero_rate is not None or options.slip_detection)
+            if self.zero_rate is not None or options.slip_detection
             else np.empty(0, bool)
-        )
-        self.starts = (
-            self._starts() if self.use_speed and options.release_at_start else np.empty(0, bool)
         )
 
     def _standstill(self) -> NDArray[np.bool_]:
@@ -309,40 +300,6 @@ class Odometer(Plugin):
         rest: NDArray[np.bool_] = (moved[1:] - moved[first]) == 0
         rest[: max(span, 1)] = False  # no interval before the first reading, no past to check
         return rest
-
-    def _starts(self) -> NDArray[np.bool_]:
-        """Readings that show motion right after a standstill (the one before them at rest)."""
-        starts = np.zeros(self.still.size, bool)
-        starts[1:] = ~self.still[1:] & self._standstill()[:-1]
-        return starts
-
-    def process_noise(self, index: int) -> dict[str, NDArray[np.float64]] | None:
-        """At the first reading in motion after a standstill: its speed² on the horizontal
-        velocity variances, its travel² on the position's.
-
-        The machine began to move at an instant the encoder cannot tell: a quantized one
-        counts nothing until the first count's worth of travel (72 counts/m: 1.4 cm, 3 s of a
-        shearer's gentle start), and a start at a few mg is below what the IMU detector can
-        separate from a stop. Until this reading the zero-velocity updates (the ZUPT's, the
-        odometer's own zero speeds) held the velocity at zero with a σ of millimetres per
-        second; the speed reached, at most about this reading's, and the travel, at most this
-        reading's, are what they missed. Without the release the filter held its velocity
-        within 1 mm/s of zero while the machine crept at 1–2 cm/s and the next readings'
-        speed took seconds to pull it: 4 cm off at a σ of 5 mm, and a healthy UWB isolated
-        (full_afkf on a random world with a 72-count/m encoder, three times in 48 min).
-        A lone spike that passes the screening's step rule (:mod:`fusion.screening`, at most
-        ``max_acceleration_mps2`` × one raw interval) releases no more than that step."""
-        if not self.starts.size or not self.starts[index]:
-            return None
-        assert self.recording.odometer is not None
-        speed = abs(float(self.speed[index]))
-        travel = speed * float(
-            self.recording.odometer.t[index] - self.recording.odometer.t[index - 1]
-        )
-        return {
-            VELOCITY: np.array([speed**2, speed**2, 0.0]),
-            POSITION: np.array([travel**2, travel**2, 0.0]),
-        }
 
     def state_blocks(self) -> tuple[StateBlock, ...]:
         """Mounting angles δα (3) and, with an odometer, its scale factor error δk_D."""
