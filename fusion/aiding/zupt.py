@@ -329,8 +329,8 @@ def _moving(ctx: MeasurementContext) -> bool:
 
 
 REST_NOISE_WINDOW_S = 10.0
-"""Readings whose noise tells an encoder's motion from its noise at a release (s): a stop of
-the shearer's, tens of readings."""
+"""How far back (s) a release takes the encoder's noise at rest from: a short stop of a
+shearer's, tens of readings."""
 
 
 class ZuptOptions(PluginOptions):
@@ -464,16 +464,16 @@ class Zupt(Plugin):
         self, stationary: NDArray[np.bool_], at_rest: NDArray[np.bool_]
     ) -> dict[int, tuple[float, float]]:
         """Epochs whose encoder ends a run of ZUPTs (the IMU still says stationary) with a
-        reading beyond 3σ of the readings' own noise at rest, with the largest speed and the
+        reading beyond 3σ̂ of the encoder's noise at rest, with the largest speed and the
         travel of the readings since the previous epoch.
 
-        The noise σ̂ is the one of the readings of the :data:`REST_NOISE_WINDOW_S` before the
-        previous epoch, from their successive differences
-        (:func:`fusion.aiding.reference_speed.reading_noise`); not of the ZUPTs' own ``guard_s``,
-        whose readings are all below ``odometer_rest_mps`` by selection.
-        An encoder noisier than ``odometer_rest_mps`` (16 mm/s on a random world) ends runs of
-        ZUPTs on noise alone: 14 releases in 88 min there, none at a start, had cost 15 % of
-        ``full_ckf``'s horizontal RMS."""
+        σ̂ is the noise of the readings of the :data:`REST_NOISE_WINDOW_S` before the previous
+        epoch, from their successive differences
+        (:func:`fusion.aiding.reference_speed.reading_noise`), not of the ZUPTs' own
+        ``guard_s``, whose readings the rest check selects below ``odometer_rest_mps``. An
+        encoder noisier than that threshold ends runs of ZUPTs on noise alone, and a release
+        there only loosens a velocity that such readings then hold badly
+        (docs/design/2026-11-28-starts-and-seed000.md)."""
         assert self.recording.odometer is not None
         odometer = self.recording.odometer
         applied = stationary & at_rest
@@ -497,22 +497,20 @@ class Zupt(Plugin):
         return releases
 
     def process_noise(self, index: int) -> dict[str, NDArray[np.float64]] | None:
-        """Where the encoder ends a run of ZUPTs (option ``release_at_motion``): the largest
-        speed² of its new readings on the horizontal velocity variances, their travel² on the
-        position's.
+        """Where the encoder ends a run of ZUPTs (option ``release_at_motion``,
+        :meth:`_releases`): the largest speed² of its new readings on the horizontal velocity
+        variances, their travel² on the position's.
 
         The machine began to move at an instant neither sensor can tell: a quantized encoder
-        counts nothing until the first count's worth of travel (72 counts/m: 1.4 cm, 3 s of a
-        shearer's gentle start), and a start at a few mg is below what the IMU detector can
-        separate from a stop. Until the encoder showed it, the ZUPTs held the velocity at zero
-        within their σ of a millimetre per second; the speed reached, at most about the
-        readings', and the travel, at most theirs, are what they missed. Without the release
-        the filter's velocity stayed within 1 mm/s of zero while the machine crept at
-        1–2 cm/s, the next readings took seconds to pull it: 4 cm off at a σ of 5 mm, and a
-        healthy UWB isolated (full_afkf on a random world with a 72-count/m encoder, three
-        times in 48 min). Released only where the ZUPTs held the velocity: an odometer's own
-        zero readings (σ 1 cm/s) do not pin it so hard, and releasing after every stop cost
-        the odometer-only filters 10–20 % of their median accuracy on random worlds."""
+        counts nothing until the first count's worth of travel, and a shearer's gentle start
+        (a few mg) is below what the IMU detector can separate from a stop. Until the encoder
+        showed it, the ZUPTs held the velocity at zero within their σ; the speed reached (at
+        most about the readings') and the travel (at most theirs) are what they missed.
+        Without the release the filter ran centimetres off at a σ of millimetres after such a
+        start, and the federated fault monitor isolated a healthy UWB
+        (docs/design/2026-11-28-starts-and-seed000.md). Only the ZUPT releases: an odometer's
+        own zero readings (σ of a centimetre per second) do not pin the velocity so hard, and
+        releasing after every odometer start cost the odometer-only filters accuracy."""
         release = self.releases.get(index)
         if release is None:
             return None
