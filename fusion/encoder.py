@@ -28,15 +28,20 @@ from numpy.typing import NDArray
 from fusion.recording import OdometerData
 
 
-def combine_readings(odometer: OdometerData, max_rate_hz: float) -> OdometerData:
-    """Readings merged until each spans at least ``1 / max_rate_hz`` (module docstring).
+def reading_intervals(t: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Each reading's interval, from the previous reading to it (a reading is the mean speed
+    over its interval); the first one, which has no predecessor, is taken as the median
+    interval. Needs at least two readings."""
+    return np.diff(t, prepend=t[0] - float(np.median(np.diff(t))))
 
-    The first reading's interval is taken as the median interval (it has no predecessor).
-    """
+
+def combine_readings(odometer: OdometerData, max_rate_hz: float) -> OdometerData:
+    """Readings merged until each spans at least ``1 / max_rate_hz`` (module docstring), each
+    reading over its :func:`reading_intervals`."""
     t = odometer.t
     if t.size < 2:
         return odometer
-    dt = np.diff(t, prepend=t[0] - float(np.median(np.diff(t))))
+    dt = reading_intervals(t)
     travel = np.concatenate([[0.0], np.cumsum(odometer.speed * dt)])
     start = np.concatenate([[t[0] - dt[0]], t])  # start[k]: beginning of reading k's interval
     ends = _window_ends(start, 1.0 / max_rate_hz)

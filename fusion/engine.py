@@ -271,6 +271,11 @@ class Engine:
             if block.enabled
         ]
         self.gates = [b.gate_probability for b in config.plugins if b.enabled]
+        self._noise_sources = frozenset(  # plugins with a process_noise of their own
+            k
+            for k, p in enumerate(self.plugins)
+            if type(p).process_noise is not Plugin.process_noise
+        )
         self.plugin_blocks = [p.state_blocks() for p in self.plugins]
         counts = [p.stored_errors() for p in self.plugins]
         self.stored_error_offsets = np.concatenate([[0], np.cumsum(counts)]).astype(np.intp)
@@ -401,10 +406,13 @@ class Engine:
                 t_cov = te
                 if jumps is not None:
                     jumps.step(te, bank)
-            released = self._process_noise(sources[i:j], indices[i:j])
+            released = (
+                self._process_noise(sources[i:j], indices[i:j]) if self._noise_sources else None
+            )
             if released is not None:  # an identity time update: the smoother's prior has it
-                bank.predict(np.eye(self.layout.dim), released)
-                observed.predict(np.eye(self.layout.dim), released)
+                identity = np.eye(self.layout.dim)
+                bank.predict(identity, released)
+                observed.predict(identity, released)
             prior = bank.smoothing_state() if smoother is not None else None
             updated = False
             is_output = False
@@ -680,7 +688,7 @@ class Engine:
         (:meth:`fusion.plugin.Plugin.process_noise`), or None."""
         added = None
         for src, index in zip(sources.tolist(), indices.tolist(), strict=True):
-            if src < 0:  # outputs, grid and store epochs
+            if src not in self._noise_sources:  # outputs, grid and store epochs are negative
                 continue
             blocks = self.plugins[src].process_noise(index)
             for block, variances in (blocks or {}).items():

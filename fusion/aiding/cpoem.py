@@ -124,6 +124,7 @@ from numpy.typing import NDArray
 from pydantic import Field
 
 from fusion.attitude import skew
+from fusion.encoder import reading_intervals
 from fusion.error_model import ATTITUDE, POSITION
 from fusion.face import FaceLine
 from fusion.kalman import CorrelatedNoise
@@ -242,7 +243,7 @@ class Cpoem(Plugin):
         count = math.ceil(length / options.interval_m)
         self.stations = np.concatenate([options.interval_m * np.arange(count), [length]])
         odo = recording.odometer
-        dt = np.diff(odo.t, prepend=odo.t[0] - float(np.median(np.diff(odo.t))))
+        dt = reading_intervals(odo.t)
         self._odometer_t = odo.t
         self._mileage = np.cumsum(odo.speed * dt)  # each speed is its interval's mean
         support = recording.support

@@ -117,6 +117,7 @@ from fusion.aiding.odometer import Odometer, OdometerOptions
 from fusion.aiding.reference_speed import reading_noise
 from fusion.aiding.zaru import ZeroAngularRate
 from fusion.earth import OMEGA_IE, normal_gravity
+from fusion.encoder import reading_intervals
 from fusion.error_model import POSITION, VELOCITY, ImuNoise, StateBlock
 from fusion.plugin import Measurement, MeasurementContext, Plugin, PluginOptions
 from fusion.recording import ImuSpec, Recording
@@ -478,9 +479,7 @@ class Zupt(Plugin):
         odometer = self.recording.odometer
         applied = stationary & at_rest
         ended = np.flatnonzero(applied[:-1] & stationary[1:] & ~at_rest[1:]) + 1
-        interval = np.diff(
-            odometer.t, prepend=odometer.t[0] - float(np.median(np.diff(odometer.t)))
-        )
+        interval = reading_intervals(odometer.t)
         before = self._epochs[ended - 1]
         rest = np.searchsorted(odometer.t, before - REST_NOISE_WINDOW_S, side="right")
         first = np.searchsorted(odometer.t, before, side="right")
