@@ -1,5 +1,5 @@
 """Benchmark suites: ``python -m benchmarks SUITE [--runs N] [--out DIR] [--jobs J]
-[--scheduler tcp://host:port|local-dask] [--set key.sub=value ...]``.
+[--scheduler tcp://host:port|local-dask] [--set key.sub=value ...] [--resume]``.
 
 Suites (issue 7): ``seed000`` (SEP per cutting cycle, Δ, RTS, IMU grades), ``seed002`` (MC and
 ZUPT), ``seed003`` (SINS/OD/MAG; CKF vs AFKF under magnetic interference), ``seed004`` (UWB),
@@ -19,7 +19,9 @@ own command, date and machine). ``strapdown`` prints the mechanization cost per 
 
 Monte Carlo runs are seeded (0 … N−1) and execute in ``--jobs`` local processes (default: one
 per core) or on a Dask cluster (``--scheduler``; needs ``pip install 'shearer-fusion[bench]'``);
-the tables are identical either way.
+the tables are identical either way. Each finished recording is kept in ``OUT/tasks/`` until
+the suite's outputs are written, and ``--resume`` reruns an interrupted suite from there
+(:mod:`benchmarks.checkpoint`; the full-length ``robustness`` suite takes hours).
 """
 
 from __future__ import annotations
@@ -88,6 +90,7 @@ def _progress(done: int, total: int, task: object, seconds: float) -> None:
 
 def run_suites(names: list[str], args: argparse.Namespace, command: str) -> None:
     """Run suites and write each one's outputs; with ``all`` also benchmarks/RESULTS.md."""
+    from benchmarks.checkpoint import TaskStore
     from benchmarks.report import write_suite
     from benchmarks.runner import collect, run_tasks
     from benchmarks.suites import SUITES
@@ -98,10 +101,15 @@ def run_suites(names: list[str], args: argparse.Namespace, command: str) -> None
         runs = args.runs if args.runs is not None else suite.default_runs
         out = Path(args.out) if args.out and args.suite != "all" else root / name
         tasks = suite.tasks(runs, tuple(args.set))
-        print(f"{name}: {len(tasks)} recordings, {runs} run(s) per row", file=sys.stderr)
-        merged = collect(run_tasks(tasks, args.jobs, args.scheduler, _progress))
+        store = TaskStore(out / "tasks", args.resume)
+        pending = store.pending(tasks)
+        done = f", {len(tasks) - len(pending)} already done" if len(pending) < len(tasks) else ""
+        print(f"{name}: {len(tasks)} recordings{done}, {runs} run(s) per row", file=sys.stderr)
+        run_tasks(pending, args.jobs, args.scheduler, _progress, store.save)
+        merged = collect(store.results(tasks))
         date = datetime.now(UTC).strftime("%Y-%m-%d %H:%M UTC")
         print(write_suite(suite, merged, out, runs, command, date))
+        store.remove()
 
 
 def _root(args: argparse.Namespace) -> Path:
@@ -176,6 +184,12 @@ def main(argv: list[str] | None = None) -> int:
         default=os.environ.get("FUSION_BENCH_SCHEDULER") or None,
         help="tcp://host:port of a running Dask scheduler, or local-dask (a local cluster);"
         " default: $FUSION_BENCH_SCHEDULER, else local processes",
+    )
+    parser.add_argument(
+        "--resume",
+        action="store_true",
+        help="keep the tasks an interrupted run of the same command and sources finished in"
+        " --out (benchmarks/checkpoint.py) and run only the rest",
     )
     parser.add_argument(
         "--set",

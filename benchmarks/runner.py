@@ -533,6 +533,7 @@ def run_tasks(
     jobs: int = 1,
     scheduler: str | None = None,
     progress: ProgressCallback | None = None,
+    on_result: Callable[[Task, TaskResult], None] | None = None,
 ) -> list[TaskResult]:
     """Execute tasks locally (``jobs`` processes) or on Dask; results in the order of ``tasks``.
 
@@ -548,6 +549,9 @@ def run_tasks(
         or the address of a running scheduler (``tcp://host:port``).
     progress
         Called after each task with (done, total, task, seconds).
+    on_result
+        Called with each task and its result as it finishes (e.g. to store it:
+        :class:`benchmarks.checkpoint.TaskStore`).
     """
     if jobs < 1:
         raise BenchmarkError(f"--jobs must be at least 1, got {jobs}")
@@ -555,26 +559,33 @@ def run_tasks(
     for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
         os.environ.setdefault(var, "1")
     if scheduler is not None:
-        return _run_dask(tasks, jobs, scheduler, progress)
+        return _run_dask(tasks, jobs, scheduler, progress, on_result)
     results: list[TaskResult | None] = [None] * len(tasks)
+
+    def finished(done: int, i: int, result: TaskResult, seconds: float) -> None:
+        results[i] = result
+        if on_result is not None:
+            on_result(tasks[i], result)
+        if progress is not None:
+            progress(done, len(tasks), tasks[i], seconds)
+
     if jobs == 1:
         for i, task in enumerate(tasks):
-            results[i], seconds = _timed(task)
-            if progress is not None:
-                progress(i + 1, len(tasks), task, seconds)
+            finished(i + 1, i, *_timed(task))
         return [r for r in results if r is not None]
     with ProcessPoolExecutor(max_workers=jobs, mp_context=get_context("spawn")) as pool:
         futures = {pool.submit(_timed, task): i for i, task in enumerate(tasks)}
         for done, future in enumerate(as_completed(futures), start=1):
-            i = futures[future]
-            results[i], seconds = future.result()
-            if progress is not None:
-                progress(done, len(tasks), tasks[i], seconds)
+            finished(done, futures[future], *future.result())
     return [r for r in results if r is not None]
 
 
 def _run_dask(
-    tasks: Sequence[Task], jobs: int, scheduler: str, progress: ProgressCallback | None
+    tasks: Sequence[Task],
+    jobs: int,
+    scheduler: str,
+    progress: ProgressCallback | None,
+    on_result: Callable[[Task, TaskResult], None] | None,
 ) -> list[TaskResult]:
     local = scheduler == "local-dask"
     if not local and not scheduler.startswith(("tcp://", "tls://", "ucx://", "inproc://")):
@@ -605,7 +616,10 @@ def _run_dask(
         results: list[TaskResult | None] = [None] * len(tasks)
         for done, future in enumerate(dask_completed(futures), start=1):
             i = index[future.key]
-            results[i], seconds = future.result()
+            result, seconds = future.result()
+            results[i] = result
+            if on_result is not None:
+                on_result(tasks[i], result)
             if progress is not None:
                 progress(done, len(tasks), tasks[i], seconds)
         return [r for r in results if r is not None]

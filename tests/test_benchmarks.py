@@ -15,11 +15,13 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
+from benchmarks.checkpoint import TaskStore, source_fingerprint
 from benchmarks.faults import plan_fault
 from benchmarks.report import SIMULATED_END, accuracy_csv, committed_section, write_suite
 from benchmarks.runner import (
     Method,
     Task,
+    TaskResult,
     collect,
     compensation_overrides,
     load_method_config,
@@ -362,3 +364,51 @@ def test_missing_dask_is_a_clear_error(monkeypatch):
     monkeypatch.setitem(sys.modules, "distributed", None)  # import distributed → ImportError
     with pytest.raises(BenchmarkError, match=r"pip install 'shearer-fusion\[bench\]'"):
         run_tasks(_tiny_tasks()[:1], scheduler="local-dask")
+
+
+def _fake_result(seed: int) -> TaskResult:
+    return TaskResult(rows=[{"method": "m", "seed": seed, "horizontal_rms": 0.1 * seed}])
+
+
+def test_a_stopped_run_resumes_from_its_stored_tasks(tmp_path: Path):
+    """The tasks a run finished are kept; ``resume`` runs only the others and returns every
+    result in the tasks' order; a fresh run starts empty."""
+    tasks = _tiny_tasks()
+    store = TaskStore(tmp_path / "tasks", resume=False, fingerprint="a")
+    store.save(tasks[1], _fake_result(1))
+    resumed = TaskStore(tmp_path / "tasks", resume=True, fingerprint="a")
+    assert resumed.pending(tasks) == [tasks[0]]
+    resumed.save(tasks[0], _fake_result(0))
+    assert [r.rows[0]["seed"] for r in resumed.results(tasks)] == [0, 1]
+    assert TaskStore(tmp_path / "tasks", resume=False, fingerprint="a").pending(tasks) == tasks
+
+
+def test_resume_refuses_results_of_other_sources(tmp_path: Path):
+    from benchmarks.runner import BenchmarkError
+
+    TaskStore(tmp_path / "tasks", resume=False, fingerprint="a").save(
+        _tiny_tasks()[0], _fake_result(0)
+    )
+    with pytest.raises(BenchmarkError, match=r"tasks.*other sources.*without --resume"):
+        TaskStore(tmp_path / "tasks", resume=True, fingerprint="b")
+
+
+def test_the_fingerprint_follows_the_sources(tmp_path: Path):
+    for directory in ("fusion", "benchmarks", "configs"):
+        (tmp_path / directory).mkdir()
+    (tmp_path / "fusion" / "engine.py").write_text("x = 1\n")
+    (tmp_path / "configs" / "full_ckf.yaml").write_text("name: full_ckf\n")
+    before = source_fingerprint(tmp_path)
+    (tmp_path / "configs" / "full_ckf.yaml").write_text("name: full_ckf  # changed\n")
+    assert source_fingerprint(tmp_path) != before
+
+
+def test_each_finished_task_is_handed_over(monkeypatch):
+    import benchmarks.runner as runner
+
+    monkeypatch.setattr(runner, "execute_task", lambda task: _fake_result(task.seed))
+    handed: list[tuple[int, float]] = []
+    run_tasks(
+        _tiny_tasks(), jobs=1, on_result=lambda t, r: handed.append((t.seed, r.rows[0]["seed"]))
+    )
+    assert handed == [(0, 0), (1, 1)]
