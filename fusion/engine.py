@@ -336,6 +336,8 @@ class Engine:
         sins = Strapdown(
             imu.t, imu.gyro, imu.accel, self.initial_state(), coning_sculling=cfg.coning_sculling
         )
+        for plugin in self.plugins:
+            plugin.start_run()
         bank = self.filter_bank()
         observed = ObservabilityTracker(self.layout)
         self._locks = [

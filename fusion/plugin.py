@@ -228,6 +228,12 @@ class Plugin(ABC):
         ignored."""
         return None
 
+    def start_run(self) -> None:
+        """Forget what a run over the recording learned (adaptive noise, stored points,
+        flags): the engine calls it before its first epoch, so that one plugin serves any
+        number of runs. Default: nothing to forget."""
+        return None
+
     def process_noise(self, index: int) -> dict[str, NDArray[np.float64]] | None:
         """Variances to add to state blocks (by name, e.g. ``VELOCITY``) before epoch ``index``
         is measured: what this sensor's readings show the filter's model missed since its last

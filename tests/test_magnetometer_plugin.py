@@ -131,7 +131,7 @@ def _window_run(
     options: MagnetometerOptions, errors: np.ndarray, sigma_attitude: float, passes: int = 1
 ) -> list[Measurement]:
     """Measurements of a SINS whose yaw error is ``errors[k]`` at sample k (noise-free field),
-    over ``passes`` passes of the same plugin through the samples."""
+    over ``passes`` runs of the same plugin through the samples."""
     c_b_n = dcm_from_euler(0.02, 0.03, math.radians(124.0))
     plugin = Magnetometer(
         "magnetometer", options, _recording([c_b_n.T @ _earth_field()] * len(errors))
@@ -141,6 +141,7 @@ def _window_run(
     covariance[3:6, 3:6] = sigma_attitude**2 * np.eye(3)
     out = []
     for _ in range(passes):
+        plugin.start_run()
         for k, e in enumerate(errors):
             dx = np.zeros(layout.dim)
             dx[5] = e
@@ -153,7 +154,7 @@ def _window_run(
 
 def test_adaptive_noise_follows_eq32_with_the_sensor_noise_floor() -> None:
     """R* from the N previous innovations: the seed's mean e², Sage–Husa's mean(e² − H P Hᵀ),
-    never below the sensor-noise R_0 = σ_B² / (F cos I)²; off keeps R_0; a new pass restarts."""
+    never below the sensor-noise R_0 = σ_B² / (F cos I)²; off keeps R_0; a new run restarts."""
     n = 10
     rng = np.random.default_rng(4)
     errors = np.radians(1.0) * rng.standard_normal(3 * n)  # 1°: well above the 0.18° noise
@@ -171,7 +172,7 @@ def test_adaptive_noise_follows_eq32_with_the_sensor_noise_floor() -> None:
             estimate = {"window": np.sum(e2) / n, "sage_husa": np.sum(e2 - hph) / n}
             want = floor if k < n or mode == "off" else max(float(estimate[mode]), floor)
             assert r[k] == pytest.approx(want, rel=1e-6), (mode, k)
-            assert r[3 * n + k] == pytest.approx(want, rel=1e-6), (mode, "second pass", k)
+            assert r[3 * n + k] == pytest.approx(want, rel=1e-6), (mode, "second run", k)
         assert mode == "off" or r[n : 3 * n].min() > 10 * floor
     # Quiet innovations (far below the sensor noise) leave R at the floor.
     opts = MagnetometerOptions(adaptive_noise="sage_husa", adaptive_window=n, **NO_BIASES)

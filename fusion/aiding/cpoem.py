@@ -253,16 +253,15 @@ class Cpoem(Plugin):
         t1 = float(recording.imu.t[-1])
         self._epochs = np.arange(t0, t1 + 1e-9, 1.0 / options.check_rate_hz)[1:]
         self._innovations: deque[NDArray[np.float64]] = deque(maxlen=options.adaptive_window)
-        self._start_pass()
+        self.start_run()
 
-    def _start_pass(self) -> None:
-        """Start a pass over the recording: the survey, no stored point, nothing seen."""
+    def start_run(self) -> None:
+        """Start a run over the recording: the survey, no stored point, nothing seen."""
         n, length = self.stations.size, float(self.stations[-1])
         survey = self.options.survey_sigma_m**2 * np.eye(3)
         self.points = [StoredPoint(math.nan, 0.0, np.zeros(3), np.zeros((3, 3))) for _ in range(n)]
         self.points[0] = StoredPoint(-math.inf, 0.0, self.ends_enu[0].copy(), survey.copy())
         self.points[-1] = StoredPoint(-math.inf, length, self.ends_enu[1].copy(), survey.copy())
-        self._last_index = -1
         self._last_along: float | None = None
         self._last_station: int | None = None
         self._standing = True
@@ -293,9 +292,6 @@ class Cpoem(Plugin):
 
     def measure(self, index: int, ctx: MeasurementContext) -> Measurement | None:
         """A visit's point predicted from its previous visit plus the advance, or None."""
-        if index <= self._last_index:
-            self._start_pass()
-        self._last_index = index
         self._visit = self._find_visit(index, ctx)
         if self._visit is None:
             return None

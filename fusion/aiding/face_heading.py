@@ -102,12 +102,11 @@ class FaceHeading(Plugin):
             t = recording.imu.t
             step = 1.0 / options.check_rate_hz
             self._epochs = np.arange(t[0] + step, t[-1], step)
-        self._start_pass()
+        self.start_run()
 
-    def _start_pass(self) -> None:
-        """Forget where the last update was made (a new pass over the recording)."""
+    def start_run(self) -> None:
+        """Forget where the last update was made (a new run over the recording)."""
         self._last_travel: NDArray[np.float64] | None = None
-        self._last_index = -1
 
     def _reference(self, recording: Recording, options: FaceHeadingOptions) -> float | None:
         """ψ_f (rad), or None (no face ends, or a start off the face; logged)."""
@@ -147,9 +146,6 @@ class FaceHeading(Plugin):
         """The heading of the body's y axis against ψ_f (module docstring)."""
         if self.reference is None:
             return None
-        if index <= self._last_index:  # a new pass over the recording
-            self._start_pass()
-        self._last_index = index
         if self._last_travel is None:
             self._last_travel = ctx.travel.copy()
         moved = ctx.travel[:2] - self._last_travel[:2]

@@ -225,13 +225,12 @@ class Magnetometer(Plugin):
         self.indicator_threshold = chi2_threshold(2, options.indicator_probability)
         self.declination_block = f"{name}.declination_error"
         self.hard_iron_block = f"{name}.hard_iron"
-        self._start_pass()
+        self.start_run()
 
-    def _start_pass(self) -> None:
-        """Forget what a pass over the recording learned (adaptive R, site field, flags)."""
+    def start_run(self) -> None:
+        """Forget what a run over the recording learned (adaptive R, site field, flags)."""
         opts, meta = self.options, self.meta
         self._window: deque[tuple[float, float]] = deque(maxlen=opts.adaptive_window)
-        self._last_index = -1
         self._suspect_until = -math.inf
         self._disturbance_uT = 0.0
         tolerance_dip = math.radians(opts.inclination_tolerance_deg)
@@ -314,9 +313,6 @@ class Magnetometer(Plugin):
 
     def measure(self, index: int, ctx: MeasurementContext) -> Measurement | None:
         """Heading residual ``ψ̃ − ψ_mag`` with its full H, adaptive R and indicator flag."""
-        if index <= self._last_index:  # a new pass over the recording
-            self._start_pass()
-        self._last_index = index
         opts = self.options
         field_b = self.data.field[index]
         u = ctx.c_b_n @ field_b
