@@ -23,11 +23,17 @@ from typing import Any
 import numpy as np
 import pytest
 
-from fusion.aiding.uwb import LeastSquaresOptions, UwbOptions, UwbRanges, least_squares_solution
+from fusion.aiding.uwb import (
+    LeastSquaresOptions,
+    UwbOptions,
+    UwbRanges,
+    least_squares_solution,
+    second_order_range,
+)
 from fusion.attitude import dcm_from_euler
 from fusion.config import load_config, parse_config
 from fusion.engine import Engine, RunResult
-from fusion.error_model import ATTITUDE, GYRO_BIAS
+from fusion.error_model import ATTITUDE, GYRO_BIAS, POSITION, StateLayout
 from fusion.innovations import InnovationLog
 from fusion.kalman import KalmanFilter
 from fusion.metrics import interpolate_truth
@@ -127,6 +133,17 @@ def _bias_plugin(bias: np.ndarray) -> UwbRanges:
     return UwbRanges("uwb", UwbOptions(range_bias=True), rec)
 
 
+def _exact(layout: StateLayout) -> np.ndarray:
+    """The layout's prior covariance with the position known exactly: the range's
+    second-order terms (:func:`second_order_range`) vanish, and z is the first-order model
+    these tests differentiate."""
+    covariance = layout.initial_covariance()
+    position = layout.slice(POSITION)
+    covariance[position, :] = 0.0
+    covariance[:, position] = 0.0
+    return covariance
+
+
 def test_h_matches_numerical_differentiation() -> None:
     """z = 0 at the truth, and z(δx) ≈ H δx around it for the SINS and the bias states.
 
@@ -142,7 +159,9 @@ def test_h_matches_numerical_differentiation() -> None:
             plugin = _bias_plugin(TRUE_BIAS + dx[bias_slice])
             x = np.zeros(layout.dim)
             x[bias_slice] = TRUE_BIAS  # the filter knows the biases; they enter z − H x
-            ctx = perturbed_context(layout, dx, position_enu=P_TRUE, c_b_n=C_B_N, x=x)
+            ctx = perturbed_context(
+                layout, dx, position_enu=P_TRUE, c_b_n=C_B_N, x=x, covariance=_exact(layout)
+            )
             m = plugin.measure(k, ctx)
             assert m is not None
             return m.z - m.H @ x
@@ -150,7 +169,13 @@ def test_h_matches_numerical_differentiation() -> None:
         np.testing.assert_allclose(residual(np.zeros(layout.dim)), 0.0, atol=1e-9)
         steps = np.array([1e-3] * 3 + [1e-5] * 3 + [1e-2] * 3 + [0.0] * 6 + [1e-3] * 3)
         numeric = numerical_jacobian(residual, layout.dim, steps)
-        ctx = perturbed_context(layout, np.zeros(layout.dim), position_enu=P_TRUE, c_b_n=C_B_N)
+        ctx = perturbed_context(
+            layout,
+            np.zeros(layout.dim),
+            position_enu=P_TRUE,
+            c_b_n=C_B_N,
+            covariance=_exact(layout),
+        )
         m = _bias_plugin(TRUE_BIAS).measure(k, ctx)
         assert m is not None and m.H.shape == (1, layout.dim)
         # δp is applied along the origin's ENU axes, which differ from the local axes at 38 m
@@ -202,7 +227,13 @@ def test_epoch_grid_takes_the_tag_back_to_the_range_time() -> None:
 
         def residual(dx: np.ndarray, k: int = k) -> np.ndarray:
             ctx = perturbed_context(
-                layout, dx, t=epoch_time[k], position_enu=P_TRUE, velocity=velocity, c_b_n=C_B_N
+                layout,
+                dx,
+                t=epoch_time[k],
+                position_enu=P_TRUE,
+                velocity=velocity,
+                c_b_n=C_B_N,
+                covariance=_exact(layout),
             )
             m = plugin.measure(k, ctx)
             assert m is not None
@@ -220,6 +251,7 @@ def test_epoch_grid_takes_the_tag_back_to_the_range_time() -> None:
             position_enu=P_TRUE,
             velocity=velocity,
             c_b_n=C_B_N,
+            covariance=_exact(layout),
         )
         m = plugin.measure(k, ctx)
         assert m is not None
@@ -235,12 +267,58 @@ def test_linearized_at_the_estimate() -> None:
     dx = np.zeros(layout.dim)
     dx[0:9] = [0.1, -0.2, 0.05, 0.03, -0.02, 0.3, 0.8, -0.5, 0.4]  # 17°, 0.8 m: far from linear
     dx[layout.slice("uwb.range_bias")] = TRUE_BIAS
-    ctx = perturbed_context(layout, dx, position_enu=P_TRUE, c_b_n=C_B_N, x=dx)
+    ctx = perturbed_context(
+        layout, dx, position_enu=P_TRUE, c_b_n=C_B_N, x=dx, covariance=_exact(layout)
+    )
     plugin = _bias_plugin(TRUE_BIAS)
     for k in range(len(ANCHORS_ENU)):
         m = plugin.measure(k, ctx)
         assert m is not None
         np.testing.assert_allclose(m.z - m.H @ dx, 0.0, atol=2e-5)
+
+
+def test_second_order_terms_match_the_range_over_the_position_uncertainty() -> None:
+    """A filter that has met the anchor knows the range (σ 0.1 m along the line of sight) but
+    not where across it (σ 2 m, the anchor 10 m away). For a position drawn from that N(p̂, P)
+    the range's mean is the second-order prediction within 2 cm, and its variance is covered
+    by it within 20 % (the higher-order terms shrink it); the first-order one misses the mean
+    by 0.38 m and puts the variance at 0.01 m² where it is 0.15 m². With P → 0 the terms
+    vanish."""
+    rng = np.random.default_rng(7)
+    anchor = np.array([10.0, 0.0, 0.0])
+    covariance = np.diag([0.01, 4.0, 4.0])
+    u = np.array([-1.0, 0.0, 0.0])
+    bias, spread = second_order_range(u, 10.0, covariance)
+    drawn = rng.multivariate_normal(np.zeros(3), covariance, 200_000)
+    ranges = np.linalg.norm(drawn - anchor, axis=1)
+    first_order = float(u @ covariance @ u)
+    assert abs(10.0 + bias - ranges.mean()) < 0.02 and abs(10.0 - ranges.mean()) > 0.3
+    assert ranges.var() <= first_order + spread < 1.2 * ranges.var()
+    assert first_order < 0.1 * ranges.var()
+    assert second_order_range(u, 10.0, np.zeros((3, 3))) == (0.0, 0.0)
+
+
+def test_the_range_update_carries_the_second_order_terms() -> None:
+    """The measurement's z and R carry them: z is the expected range minus the measured one
+    and R adds the spread to the ranging variance."""
+    layout = layout_with(())
+    tag = _true_tag()
+    ranges = [(a, float(np.linalg.norm(tag - np.array(p)))) for a, p in ANCHORS_ENU.items()]
+    plugin = UwbRanges("uwb", UwbOptions(), _recording(ANCHORS_ENU, LEVER_ARM, ranges))
+    known = perturbed_context(
+        layout, np.zeros(layout.dim), position_enu=P_TRUE, c_b_n=C_B_N, covariance=_exact(layout)
+    )
+    covariance = _exact(layout)
+    covariance[layout.slice(POSITION), layout.slice(POSITION)] = np.diag([4.0, 4.0, 0.25])
+    uncertain = replace(known, covariance=covariance)
+    exact, wide = plugin.measure(0, known), plugin.measure(0, uncertain)
+    assert exact is not None and wide is not None
+    line = tag - np.array(ANCHORS_ENU["A1"])
+    distance = float(np.linalg.norm(line))
+    bias, spread = second_order_range(line / distance, distance, np.diag([4.0, 4.0, 0.25]))
+    assert bias > 0.05 and spread > 0.0
+    np.testing.assert_allclose(wide.z - exact.z, bias, atol=1e-4)
+    np.testing.assert_allclose(wide.R - exact.R, spread, rtol=1e-3)
 
 
 def test_max_range_produces_nothing() -> None:

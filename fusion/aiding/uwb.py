@@ -23,6 +23,12 @@ Tightly coupled ranges (:class:`UwbRanges`)
     innovation ``z − H x̂`` is the residual ``r̂_i + b̂_i − ρ_i`` of the corrected state.
     The plugin adds the lever-arm (attitude) columns that seed 004's H (eq. 24) omits.
 
+    Second order. A range curves across its line of sight; where the position σ there is
+    metres and the anchor tens of metres away (the tag back at a face end after a pass), the
+    predicted range takes the expected lengthening ``½ tr(M P)`` and R the spread
+    ``½ tr(M P M P)``, ``M = (I − u uᵀ)/r̃`` (:func:`second_order_range`). Both vanish as the
+    filter converges.
+
     Heading through the lever arm. The heading column ``(u × C̃ℓ)_z`` informs the heading only
     through a turn of the lever arm; a slow machine barely turns, and what the column then
     sees turning is the nominal attitude itself — its feedback corrections and the drift of
@@ -414,7 +420,8 @@ class UwbRanges(Plugin):
         return np.sqrt(self.beta / self.alpha)
 
     def measure(self, index: int, ctx: MeasurementContext) -> Measurement | None:
-        """Residual of the predicted range against row ``index``, linearized at the estimate."""
+        """Residual of the expected range against row ``index``, linearized at the estimate,
+        with the range's second-order terms in z and R."""
         k = int(self.data.anchor_index[index])
         layout = ctx.layout
         att, pos, vel = layout.slice(ATTITUDE), layout.slice(POSITION), layout.slice(VELOCITY)
@@ -443,20 +450,29 @@ class UwbRanges(Plugin):
         )
         h[pos] = u
         h[vel] = -back * u
-        z = predicted - float(self.data.range[index])
+        bias, spread = second_order_range(u, predicted, ctx.covariance[pos, pos])
+        z = predicted + bias - float(self.data.range[index])
         if corrected:
             z += float(h[att] @ x_att + h[pos] @ x_pos + h[vel] @ x_vel)
         if self.options.range_bias:
             h[layout.slice(self.bias_block).start + k] = -1.0
-        variance = self._variance(index, k, ctx, z, h)
+        variance = self._variance(index, k, ctx, z, h, spread) + spread
         # A slow machine: the lever arm's heading column is the consider state (docstring).
         consider = (att.start + 2,) if ctx.observable_force else ()
         return Measurement(np.array([z]), h[None, :], np.array([[variance]]), consider=consider)
 
     def _variance(
-        self, index: int, k: int, ctx: MeasurementContext, z: float, h: NDArray[np.float64]
+        self,
+        index: int,
+        k: int,
+        ctx: MeasurementContext,
+        z: float,
+        h: NDArray[np.float64],
+        spread: float,
     ) -> float:
-        """R of anchor ``k``: fixed, or the variational-Bayes update (module docstring)."""
+        """R of anchor ``k``: fixed, or the variational-Bayes update (module docstring); the
+        range's ``spread`` over the position's uncertainty (:func:`second_order_range`) is
+        part of the innovation's variance, not a ranging noise to learn."""
         if not self.adaptive:
             return self.options.sigma_range_m**2
         t = float(self.data.t[index])
@@ -468,7 +484,7 @@ class UwbRanges(Plugin):
                 self.alpha[k], self.beta[k] = self._alpha0, self._beta0
         self.t_last[k] = t
         nu = z - float(h @ ctx.x)
-        s = float(h @ ctx.covariance @ h)
+        s = float(h @ ctx.covariance @ h) + spread
         r = self.beta[k] / self.alpha[k]
         if nu * nu / (s + r) > self._screen:
             return r
@@ -480,6 +496,26 @@ class UwbRanges(Plugin):
             r = beta / alpha
         self.alpha[k], self.beta[k] = alpha, beta
         return r
+
+
+def second_order_range(
+    line_of_sight: NDArray[np.float64], distance: float, covariance: NDArray[np.float64]
+) -> tuple[float, float]:
+    """The mean offset and the extra variance of a range over the position's uncertainty.
+
+    The range ``r(p) = ‖p − a‖`` curves with ``∂²r/∂p² = (I − u uᵀ)/r`` (``u`` the unit line
+    of sight): across the line of sight a position error ``e`` lengthens the range by
+    ``‖e‖²/(2r)``. For ``p ~ N(p̂, P)`` the Gaussian second-order filter (Jazwinski 1970,
+    §9.3; Bar-Shalom, Li & Kirubarajan 2001, §10.3) therefore predicts the range
+    ``r(p̂) + ½ tr(M P)`` and adds ``½ tr(M P M P)`` to the innovation variance, ``M = ∂²r/∂p²``.
+    Both vanish as P shrinks; they matter where the filter meets the anchors after a long
+    pass, its position σ metres across the line of sight of anchors ten metres away, where a
+    first-order update would take the chord for the arc and claim centimetres.
+    """
+    u = line_of_sight
+    curvature = (np.eye(3) - np.outer(u, u)) / max(distance, 1e-9)
+    spread = curvature @ covariance
+    return 0.5 * float(np.trace(spread)), 0.5 * float(np.sum(spread * spread.T))
 
 
 def _gauss_newton(
