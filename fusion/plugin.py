@@ -231,7 +231,8 @@ class Plugin(ABC):
     def start_run(self) -> None:
         """Forget what a run over the recording learned (adaptive noise, stored points,
         flags): the engine calls it before its first epoch, so that one plugin serves any
-        number of runs. Default: nothing to forget."""
+        number of runs. A plugin that keeps anything from one epoch to the next resets it
+        here. Default: nothing to forget."""
         return None
 
     def process_noise(self, index: int) -> dict[str, NDArray[np.float64]] | None:

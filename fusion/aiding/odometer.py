@@ -289,6 +289,14 @@ class Odometer(Plugin):
             else np.empty(0, bool)
         )
 
+    def start_run(self) -> None:
+        """Forget a run's learned noise, reference travel and rest scatter."""
+        self._excess.clear()
+        self._index = 0
+        self.reference.start_run()
+        if self.zero_rate is not None:
+            self.zero_rate.start_run()
+
     def _standstill(self) -> NDArray[np.bool_]:
         """Readings preceded by ``rest_guard_s`` of still readings (this one too)."""
         assert self.recording.odometer is not None

@@ -118,6 +118,11 @@ class ReferenceSpeed:
         bound = STEADY_SIGMAS * noise * np.sqrt(1.0 / n_short + 1.0 / n_steady)
         return np.where(usable, bound, -1.0)
 
+    def start_run(self) -> None:
+        """Forget a run's SINS travel and slip onsets."""
+        self.travel.fill(np.nan)
+        self._onsets.clear()
+
     def jumped(self, onset: float, before: float) -> None:
         """A slip jump taken in at ``onset``; the slip estimate was ``before`` until then."""
         self._onsets.append((onset, before))

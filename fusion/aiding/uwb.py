@@ -289,12 +289,17 @@ class UwbRanges(Plugin):
         # Inverse-gamma statistics per anchor; the prior weighs one window of the anchor's
         # ranges (uwb.rate_hz is the nominal rate of all anchors together).
         self._alpha0 = 0.5 * max(meta.rate_hz / n * options.adaptive_window_s, 1.0)
-        self.alpha = np.full(n, self._alpha0)
         self._beta0 = self._alpha0 * options.sigma_range_m**2
-        self.beta = np.full(n, self._beta0)
-        self.t_last = np.full(n, np.nan)
         self._screen = chi2_threshold(1, options.adaptive_screen_probability)
         self.face = FaceLine.from_meta(recording.meta.face)
+        self.start_run()
+
+    def start_run(self) -> None:
+        """Start every anchor's noise statistics from the prior."""
+        n = len(self.data.anchor_ids)
+        self.alpha = np.full(n, self._alpha0)
+        self.beta = np.full(n, self._beta0)
+        self.t_last = np.full(n, np.nan)
 
     def standalone_solution(self, gate_probability: float | None, log: InnovationLog) -> Solution:
         """The UWB-only least-squares baseline with ``options.least_squares``."""

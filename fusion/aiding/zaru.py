@@ -63,6 +63,10 @@ class ZeroAngularRate:
         self.floor = math.radians(floor_dps)
         self._scatter: deque[tuple[NDArray[np.float64], int]] = deque(maxlen=SCATTER_INTERVALS)
 
+    def start_run(self) -> None:
+        """Forget a run's gyro scatter at rest."""
+        self._scatter.clear()
+
     def measure(self, t_start: float, t_end: float, ctx: MeasurementContext) -> Measurement:
         """The ZARU from the IMU samples in ``(t_start, t_end]`` (module docstring); from the
         last sample at or before ``t_end`` when the interval holds none (an epoch grid as fine

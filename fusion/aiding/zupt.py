@@ -554,6 +554,13 @@ class Zupt(Plugin):
         """The mounting angles δα of the switched motion constraint, if configured."""
         return self.constraint.state_blocks() if self.constraint is not None else ()
 
+    def start_run(self) -> None:
+        """Forget a run's rest scatter and the constraint's learned noise."""
+        if self.zero_rate is not None:
+            self.zero_rate.start_run()
+        if self.constraint is not None:
+            self.constraint.start_run()
+
     def epochs(self) -> NDArray[np.float64]:
         """A regular grid at ``update_rate_hz`` on the IMU clock."""
         return self._epochs
