@@ -366,7 +366,7 @@ def test_missing_dask_is_a_clear_error(monkeypatch):
         run_tasks(_tiny_tasks()[:1], scheduler="local-dask")
 
 
-def _fake_result(seed: int) -> TaskResult:
+def _stored_result(seed: int) -> TaskResult:
     return TaskResult(rows=[{"method": "m", "seed": seed, "horizontal_rms": 0.1 * seed}])
 
 
@@ -375,10 +375,10 @@ def test_a_stopped_run_resumes_from_its_stored_tasks(tmp_path: Path):
     result in the tasks' order; a fresh run starts empty."""
     tasks = _tiny_tasks()
     store = TaskStore(tmp_path / "tasks", resume=False, fingerprint="a")
-    store.save(tasks[1], _fake_result(1))
+    store.save(tasks[1], _stored_result(1))
     resumed = TaskStore(tmp_path / "tasks", resume=True, fingerprint="a")
     assert resumed.pending(tasks) == [tasks[0]]
-    resumed.save(tasks[0], _fake_result(0))
+    resumed.save(tasks[0], _stored_result(0))
     assert [r.rows[0]["seed"] for r in resumed.results(tasks)] == [0, 1]
     assert TaskStore(tmp_path / "tasks", resume=False, fingerprint="a").pending(tasks) == tasks
 
@@ -387,7 +387,7 @@ def test_resume_refuses_results_of_other_sources(tmp_path: Path):
     from benchmarks.runner import BenchmarkError
 
     TaskStore(tmp_path / "tasks", resume=False, fingerprint="a").save(
-        _tiny_tasks()[0], _fake_result(0)
+        _tiny_tasks()[0], _stored_result(0)
     )
     with pytest.raises(BenchmarkError, match=r"tasks.*other sources.*without --resume"):
         TaskStore(tmp_path / "tasks", resume=True, fingerprint="b")
@@ -406,7 +406,7 @@ def test_the_fingerprint_follows_the_sources(tmp_path: Path):
 def test_each_finished_task_is_handed_over(monkeypatch):
     import benchmarks.runner as runner
 
-    monkeypatch.setattr(runner, "execute_task", lambda task: _fake_result(task.seed))
+    monkeypatch.setattr(runner, "execute_task", lambda task: _stored_result(task.seed))
     handed: list[tuple[int, float]] = []
     run_tasks(
         _tiny_tasks(), jobs=1, on_result=lambda t, r: handed.append((t.seed, r.rows[0]["seed"]))
