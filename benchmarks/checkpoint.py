@@ -26,9 +26,10 @@ import shutil
 from collections.abc import Sequence
 from pathlib import Path
 
+from benchmarks.report import BENCH_DIR
 from benchmarks.runner import BenchmarkError, Task, TaskResult
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = BENCH_DIR.parent
 FINGERPRINTED = (("fusion", "*.py"), ("benchmarks", "*.py"), ("configs", "*"))
 """(directory under the repository, glob) of the files whose content the results depend on."""
 MANIFEST = "source.json"

@@ -27,6 +27,7 @@ from fusion.recording import (
     read_recording,
     write_recording,
 )
+from fusion.sim.simulate import simulate
 from tests.plugin_support import static_recording
 
 SPEC = {
@@ -319,14 +320,10 @@ def test_an_engine_run_twice_gives_the_same_solution(
     """Every plugin forgets at ``start_run`` what a run taught it (adaptive noise, stored
     points, reference travel, rest scatter), so a second run of one engine is the first one
     again, forward and smoothed, to the last bit."""
-    from fusion.sim.simulate import simulate
-
     directory = tmp_path_factory.mktemp("twice") / "rec"
     simulate("longwall-random", directory, seed=3, overrides=("duration_s=120",))
     recording = read_recording(directory, bridge_imu_gaps=True)
-    engine = Engine(
-        load_config(Path(__file__).parents[1] / "configs" / f"{config}.yaml"), recording
-    )
+    engine = Engine(load_config(CONFIGS / f"{config}.yaml"), recording)
     first, second = engine.run(), engine.run()
     np.testing.assert_array_equal(first.solution.position, second.solution.position)
     np.testing.assert_array_equal(first.solution.sigma_position, second.solution.sigma_position)
