@@ -27,6 +27,9 @@ from fusion.aiding.uwb import (
     LeastSquaresOptions,
     UwbOptions,
     UwbRanges,
+    _chi2,
+    _gauss_newton,
+    _profiled_covariance,
     least_squares_solution,
     second_order_range,
 )
@@ -756,6 +759,46 @@ def test_least_squares_sigma_covers_the_mirror_solution() -> None:
         z.append((sol.position - truth(sol.t)) / sol.sigma_position)
     rms = np.sqrt(np.mean(np.concatenate(z) ** 2, axis=0))
     assert np.all(rms < 1.5), rms
+
+
+@pytest.mark.parametrize(
+    "tag", [(-47.0, -190.0, 15.5), (-55.0, -225.0, 17.5), (-60.0, -240.0, 19.0)]
+)
+def test_a_fix_far_from_clustered_anchors_widens_its_weakest_axis(
+    tag: tuple[float, float, float],
+) -> None:
+    """Four anchors within 10 m of one face end (random world 2's), the tag 15–60 m down
+    the face and up to 6 m below them: the ranges see its height, and with it part of its
+    distance along the face, only through their curvature. A re-acquisition fix's linearized
+    covariance then claims too much (horizontal RMS(ε/σ) 1.55–1.7 over 150 seeded windows of
+    32 ranges); widened along its weakest axis by the profile of the cost, RMS(ε/σ) ≤ 1.2."""
+    anchors = np.array(
+        [
+            [-72.96, -248.93, 19.95],
+            [-73.91, -257.66, 22.0],
+            [-69.02, -258.83, 22.19],
+            [-59.74, -251.26, 20.94],
+        ]
+    )
+    truth = np.array(tag)
+    options = LeastSquaresOptions(sigma_range_m=0.08)
+    rng = np.random.default_rng(1)
+    index = np.arange(32) % 4
+    linearized, profiled = [], []
+    for _ in range(150):
+        ranges = np.linalg.norm(truth - anchors[index], axis=1) + 0.08 * rng.standard_normal(32)
+        start = truth + rng.normal(0.0, 5.0, 3)
+        fit = _gauss_newton(anchors[index], ranges, start, None, options)
+        if fit is None:  # Gauss–Newton did not converge: no fix to judge
+            continue
+        position, covariance = fit
+        cost = _chi2(position, anchors[index], ranges, None, 0.08)
+        widened = _profiled_covariance(position, covariance, cost, anchors[index], ranges, options)
+        err = (position - truth)[:2]
+        linearized.append(err @ np.linalg.solve(covariance[:2, :2], err) / 2.0)
+        profiled.append(err @ np.linalg.solve(widened[:2, :2], err) / 2.0)
+    assert len(profiled) >= 90
+    assert np.sqrt(np.mean(profiled)) <= 1.2 < 1.5 < np.sqrt(np.mean(linearized))
 
 
 def test_least_squares_gates_a_biased_anchor() -> None:
