@@ -24,6 +24,7 @@ import numpy as np
 import pytest
 
 from fusion.aiding.uwb import (
+    SHORT_RANGE_WINDOW_S,
     LeastSquaresOptions,
     UwbOptions,
     UwbRanges,
@@ -380,6 +381,55 @@ def test_reacquisition_refuses_a_mirror_image_nothing_tells_apart() -> None:
     held = _reacquired(None, ON_FACE + np.array([1.0, -2.0, 0.0]), 3.0)
     assert held is not None
     np.testing.assert_allclose(held.position_enu, ON_FACE, atol=0.02)
+
+
+def test_an_anchor_whose_ranges_read_short_for_a_window_makes_the_filter_reacquire() -> None:
+    """No NLOS shortens a range: when every range of one anchor reads shorter than the
+    filter's distance beyond the gate for SHORT_RANGE_WINDOW_S, the filter is on a wrong
+    solution, and the plugin asks for a re-acquisition (once per window of such ranges).
+    Ranges that read long (NLOS) or fit never do."""
+    tag = P_TRUE
+    names = list(ANCHORS_ENU)
+    rows = [names[i % 3] for i in range(600)]  # 6 s at 0.01 s, the anchors in turn
+
+    def plugin_with(short_m: float) -> UwbRanges:
+        ranges = [
+            (
+                a,
+                float(np.linalg.norm(tag - np.array(ANCHORS_ENU[a])))
+                - (short_m if a == "A3" else 0.0),
+            )
+            for a in rows
+        ]
+        rec = _recording(ANCHORS_ENU, (0.0, 0.0, 0.0), ranges)
+        plugin = UwbRanges("uwb", UwbOptions(adaptive_noise="off"), rec)
+        plugin.start_run()
+        return plugin
+
+    layout = layout_with(())
+    covariance = _exact(layout)
+    covariance[layout.slice(POSITION), layout.slice(POSITION)] = np.eye(3) * 1e-4
+
+    def asked(plugin: UwbRanges) -> list[float]:
+        times = []
+        for index in range(len(rows)):
+            ctx = perturbed_context(
+                layout,
+                np.zeros(15),
+                t=float(plugin.data.t[index]),
+                position_enu=tag,
+                covariance=covariance,
+            )
+            if plugin.beyond_linearization(index, ctx):
+                times.append(float(plugin.data.t[index]))
+            else:
+                plugin.measure(index, ctx)
+        return times
+
+    short = asked(plugin_with(1.0))
+    assert len(short) == 1 and short[0] >= 0.5 + SHORT_RANGE_WINDOW_S
+    assert asked(plugin_with(-1.0)) == []  # NLOS: long ranges, rejected by the gate only
+    assert asked(plugin_with(0.0)) == []
 
 
 def test_bad_input_is_named() -> None:

@@ -217,6 +217,26 @@ def test_zero_angular_rate_alone_keeps_the_constraint_at_a_standstill() -> None:
         create_plugin("zupt", "z", {"zero_velocity": False}, rec, ("plugins", 0))
 
 
+@pytest.mark.parametrize("turn_dps", [0.0, 0.02])
+def test_no_zero_angular_rate_where_the_gyros_show_a_turn(turn_dps: float) -> None:
+    """``zero_velocity: false``: a smooth haul looks still to the detector, and once its SINS
+    velocity σ exceeds its speed nothing shows it moving; but it turns with the face's
+    waviness. A ZARU whose innovation its own ``H P Hᵀ + R`` does not explain (a 72 °/h turn
+    against a gyro bias known to 2 °/h) is left out, and the constraint is gated alone."""
+    rec = static_recording(gyro_bias_rps=math.radians(turn_dps))
+    plugin = Zupt(
+        "zupt",
+        Zupt.Options(zero_velocity=False, zero_angular_rate=True, motion_constraint={}),
+        rec,
+    )
+    layout = layout_with(plugin.state_blocks())
+    known = np.eye(layout.dim) * 1e-10  # gyro bias σ 1e-5 rad/s ≈ 2 °/h
+    ctx = perturbed_context(layout, np.zeros(layout.dim), covariance=known)
+    index = int(np.flatnonzero(plugin.zupt_epoch)[10])  # the detector takes it for a stop
+    m = plugin.measure(index, ctx)
+    assert m is not None and m.z.shape == ((2,) if turn_dps else (5,))
+
+
 def test_odometer_rest_withholds_zupts_while_the_encoder_creeps() -> None:
     """A machine creeping off at mm/s is still to the IMU detector; with ``odometer_rest_mps``
     an epoch needs every encoder reading of the past ``guard_s`` below that speed."""

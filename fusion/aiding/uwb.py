@@ -180,6 +180,9 @@ VB_ITERATIONS = 3
 """Fixed-point iterations of the variational-Bayes noise update (converges in 2–3)."""
 REACQUIRE_WINDOW_S = 1.0
 """Ranges fitted together when the filter has lost lock (:meth:`UwbRanges.reacquire`)."""
+SHORT_RANGE_WINDOW_S = 3.0
+"""How long every range of one anchor must read shorter than the filter's distance beyond the
+gate before the filter is taken to be lost (:meth:`UwbRanges.beyond_linearization`)."""
 REACQUIRE_SPREAD_M = 0.1
 """1σ per axis of the tag's travel over that window, and of the lever arm's turn."""
 
@@ -300,6 +303,7 @@ class UwbRanges(Plugin):
         self.alpha = np.full(n, self._alpha0)
         self.beta = np.full(n, self._beta0)
         self.t_last = np.full(n, np.nan)
+        self.short_since = np.full(n, np.nan)
 
     def standalone_solution(self, gate_probability: float | None, log: InnovationLog) -> Solution:
         """The UWB-only least-squares baseline with ``options.least_squares``."""
@@ -364,7 +368,20 @@ class UwbRanges(Plugin):
         """The filter's horizontal position σ exceeds a tenth of the distance to the anchor of
         range ``index`` (and a metre): the line of sight is then uncertain by more than 6°, and
         a linearized range update would claim centimetres where the truth is metres away (a
-        SINS back among the anchors after 120 s of outage: 16 m off at a σ of 0.3 m)."""
+        SINS back among the anchors after 120 s of outage: 16 m off at a σ of 0.3 m).
+
+        Or the filter is on a wrong solution: every range of this anchor for
+        :data:`SHORT_RANGE_WINDOW_S` read shorter than its distance from the filter by more
+        than the gate (:meth:`measure` keeps the count). No NLOS shortens a range; a filter
+        that fits two anchors of a face end on the circle about them does that to the third
+        (random world 0 at its own length: 2.6 m off at a σ of 6 cm, the third anchor's
+        ranges 2.8 m short and rejected one by one). Each re-acquisition attempt starts the
+        count again."""
+        k = int(self.data.anchor_index[index])
+        since = self.short_since[k]
+        if np.isfinite(since) and float(self.data.t[index]) - since >= SHORT_RANGE_WINDOW_S:
+            self.short_since[:] = np.nan
+            return True
         pos = ctx.layout.slice(POSITION)
         sigma = math.sqrt(float(ctx.covariance[pos, pos][0, 0] + ctx.covariance[pos, pos][1, 1]))
         anchor = self.anchors[int(self.data.anchor_index[index])]
@@ -464,9 +481,20 @@ class UwbRanges(Plugin):
         if self.options.range_bias:
             h[layout.slice(self.bias_block).start + k] = -1.0
         variance = self._variance(index, k, ctx, z, h, spread) + spread
+        self._count_short(index, k, z, float(h @ ctx.covariance @ h) + variance)
         # A slow machine: the lever arm's heading column is the consider state (docstring).
         consider = (att.start + 2,) if ctx.observable_force else ()
         return Measurement(np.array([z]), h[None, :], np.array([[variance]]), consider=consider)
+
+    def _count_short(self, index: int, k: int, z: float, s: float) -> None:
+        """Track how long anchor ``k``'s ranges have read short of the filter's distance by
+        more than the screen's gate (``z = r̃ − r`` against its variance ``s``)."""
+        gate = chi2_threshold(1, self.options.adaptive_screen_probability)
+        if z > 0.0 and z * z > gate * s:
+            if not np.isfinite(self.short_since[k]):
+                self.short_since[k] = float(self.data.t[index])
+        else:
+            self.short_since[k] = np.nan
 
     def _variance(
         self,

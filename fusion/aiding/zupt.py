@@ -308,6 +308,27 @@ MOVING_PROBABILITY = 0.999
 _MOVING_THRESHOLD = float(chi2.ppf(MOVING_PROBABILITY, 3))
 
 
+def _turning(zaru: Measurement, ctx: MeasurementContext) -> bool:
+    """Whether the gyros show a turn: the ZARU's innovation beyond the χ²₃ quantile
+    :data:`MOVING_PROBABILITY` of its own ``H P Hᵀ + R`` (the filter's gyro bias σ does not
+    explain it).
+
+    A shearer hauling smoothly after the UWB anchors fell behind looks still to the detector,
+    and its SINS velocity σ has grown past its speed (:func:`_moving` no longer fires); it
+    still turns with the waviness of the face, at hundreds of °/h. A ZARU there took the
+    motion constraint's rows down with it at the gate, every update of the plugin was
+    rejected for 3 s, and the engine, taking that for a lost lock, inflated the SINS
+    variances ×434: the attitude then ran 3° off (sins_uwb, random world 0 at its own
+    length). Dropped, the ZARU leaves the constraint to be gated alone.
+    """
+    s = zaru.H @ ctx.covariance @ zaru.H.T + zaru.R
+    try:
+        statistic = float(zaru.z @ np.linalg.solve(s, zaru.z))
+    except np.linalg.LinAlgError:
+        return False
+    return statistic > _MOVING_THRESHOLD
+
+
 def _moving(ctx: MeasurementContext) -> bool:
     """Whether the SINS velocity is clear of zero under its own covariance,
     ``vᵀ P_v⁻¹ v > χ²₃(`` :data:`MOVING_PROBABILITY` ``)``: the filter knows the machine moves.
@@ -582,6 +603,6 @@ class Zupt(Plugin):
         # The detector may be wrong about a creeping machine: the constraint holds either way,
         # and the ZARU only while the filter's own velocity does not show it moving.
         constraint = self.constraint.measure(index, ctx) if self.constraint is not None else None
-        if _moving(ctx):
+        if _moving(ctx) or _turning(zaru, ctx):
             return constraint
         return zaru if constraint is None else constraint.stacked_with(zaru)
