@@ -64,7 +64,12 @@ Tightly coupled ranges (:class:`UwbRanges`)
     solution farther than ``face_margin_m`` beyond a surveyed face end (meta.yaml
     ``face.ends_enu_m``) is the mirror image. A filter put on the mirror image of a row of
     anchors across the face end follows it with centimetres of σ while the tag moves the
-    other way (random world 6 at its own length: 21 m off within 12 m of an anchor).
+    other way (random world 6 at its own length: 21 m off within 12 m of an anchor). Far from
+    anchors clustered at one face end the fix's weakest axis is widened to the profile of its
+    cost (:func:`_profiled_covariance`). The engine also asks for a fix when every range of
+    one anchor has read short of the filter's distance for :data:`SHORT_RANGE_WINDOW_S`
+    (:meth:`UwbRanges.beyond_linearization`): NLOS lengthens ranges, only a wrong position
+    shortens them.
 
     Range bias (``range_bias: true``): one state per anchor, block ``<name>.range_bias``, the
     bias ``b_i`` itself (m, never fed back), prior σ ``range_bias_sigma_m``; a first-order
@@ -867,7 +872,8 @@ def _profiled_covariance(
     σ of 4.5 m along that axis, and the filter, put on it, held its height 5 m off at a σ of
     0.44 m (random world 2 at its own length). Widened by the profile, the horizontal error of
     fixes 15–60 m from four such anchors has RMS(ε/σ) 0.9–1.1, against 1.6–1.7 linearized
-    (``tests/test_uwb.py``). (The profile likelihood: Pawitan, *In All Likelihood*, 2001.)
+    (``tests/test_uwb_plugin.py``). (The profile likelihood: Pawitan, *In All Likelihood*,
+    2001.)
     """
     variances, axes = np.linalg.eigh(covariance)
     axis, largest = axes[:, -1], float(variances[-1])

@@ -318,8 +318,8 @@ def _turning(zaru: Measurement, ctx: MeasurementContext) -> bool:
     still turns with the waviness of the face, at hundreds of °/h. A ZARU there took the
     motion constraint's rows down with it at the gate, every update of the plugin was
     rejected for 3 s, and the engine, taking that for a lost lock, inflated the SINS
-    variances ×434: the attitude then ran 3° off (sins_uwb, random world 0 at its own
-    length). Dropped, the ZARU leaves the constraint to be gated alone.
+    variances ×434: tilt then ran 1.5–3° off and yaw up to 12° (sins_uwb, random world 0
+    at its own length). Dropped, the ZARU leaves the constraint to be gated alone.
     """
     s = zaru.H @ ctx.covariance @ zaru.H.T + zaru.R
     try:
