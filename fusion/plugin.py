@@ -275,6 +275,14 @@ class Plugin(ABC):
         machine is. Default: never."""
         return False
 
+    def off_solution(self, index: int) -> bool:
+        """Whether this plugin's readings show the filter on a wrong solution at epoch
+        ``index`` although its gate still passes some of them (e.g. UWB ranges that read
+        shorter than the filter's distance, which no NLOS does): the engine then asks
+        :meth:`reacquire` and restarts the position there, the velocity kept. Default:
+        never."""
+        return False
+
     def standalone_solution(self, gate_probability: float | None, log: InnovationLog) -> Solution:
         """A solution from this sensor alone, without the SINS (``filter.architecture:
         standalone``), e.g. UWB least squares, its readings gated at the block's

@@ -383,10 +383,11 @@ def test_reacquisition_refuses_a_mirror_image_nothing_tells_apart() -> None:
     np.testing.assert_allclose(held.position_enu, ON_FACE, atol=0.02)
 
 
-def test_an_anchor_whose_ranges_read_short_for_a_window_makes_the_filter_reacquire() -> None:
+def test_an_anchor_whose_ranges_read_short_for_a_window_shows_a_wrong_solution() -> None:
     """No NLOS shortens a range: when every range of one anchor reads shorter than the
     filter's distance beyond the gate for SHORT_RANGE_WINDOW_S, the filter is on a wrong
-    solution, and the plugin asks for a re-acquisition (once per window of such ranges).
+    solution, and the plugin says so (once per window of such ranges; the engine then
+    re-acquires if no other plugin holds the filter).
     Ranges that read long (NLOS) or fit never do."""
     tag = P_TRUE
     names = list(ANCHORS_ENU)
@@ -420,7 +421,8 @@ def test_an_anchor_whose_ranges_read_short_for_a_window_makes_the_filter_reacqui
                 position_enu=tag,
                 covariance=covariance,
             )
-            if plugin.beyond_linearization(index, ctx):
+            assert not plugin.beyond_linearization(index, ctx)
+            if plugin.off_solution(index):
                 times.append(float(plugin.data.t[index]))
             else:
                 plugin.measure(index, ctx)

@@ -68,8 +68,8 @@ Tightly coupled ranges (:class:`UwbRanges`)
     anchors clustered at one face end the fix's weakest axis is widened to the profile of its
     cost (:func:`_profiled_covariance`). The engine also asks for a fix when every range of
     one anchor has read short of the filter's distance for :data:`SHORT_RANGE_WINDOW_S`
-    (:meth:`UwbRanges.beyond_linearization`): NLOS lengthens ranges, only a wrong position
-    shortens them.
+    (:meth:`UwbRanges.off_solution`): NLOS lengthens ranges, only a wrong position shortens
+    them.
 
     Range bias (``range_bias: true``): one state per anchor, block ``<name>.range_bias``, the
     bias ``b_i`` itself (m, never fed back), prior σ ``range_bias_sigma_m``; a first-order
@@ -187,7 +187,7 @@ REACQUIRE_WINDOW_S = 1.0
 """Ranges fitted together when the filter has lost lock (:meth:`UwbRanges.reacquire`)."""
 SHORT_RANGE_WINDOW_S = 3.0
 """How long every range of one anchor must read shorter than the filter's distance beyond the
-gate before the filter is taken to be lost (:meth:`UwbRanges.beyond_linearization`)."""
+gate before the filter is taken to be on a wrong solution (:meth:`UwbRanges.off_solution`)."""
 REACQUIRE_SPREAD_M = 0.1
 """1σ per axis of the tag's travel over that window, and of the lever arm's turn."""
 
@@ -373,24 +373,27 @@ class UwbRanges(Plugin):
         """The filter's horizontal position σ exceeds a tenth of the distance to the anchor of
         range ``index`` (and a metre): the line of sight is then uncertain by more than 6°, and
         a linearized range update would claim centimetres where the truth is metres away (a
-        SINS back among the anchors after 120 s of outage: 16 m off at a σ of 0.3 m).
+        SINS back among the anchors after 120 s of outage: 16 m off at a σ of 0.3 m)."""
+        pos = ctx.layout.slice(POSITION)
+        sigma = math.sqrt(float(ctx.covariance[pos, pos][0, 0] + ctx.covariance[pos, pos][1, 1]))
+        anchor = self.anchors[int(self.data.anchor_index[index])]
+        return sigma > max(1.0, 0.1 * float(np.linalg.norm(ctx.position_enu - anchor)))
 
-        Or the filter is on a wrong solution: every range of this anchor for
-        :data:`SHORT_RANGE_WINDOW_S` read shorter than its distance from the filter by more
-        than the gate (:meth:`measure` keeps the count). No NLOS shortens a range; a filter
-        that fits two anchors of a face end on the circle about them does that to the third
-        (random world 0 at its own length: 2.6 m off at a σ of 6 cm, the third anchor's
-        ranges 2.8 m short and rejected one by one). Each re-acquisition attempt starts the
-        count again."""
+    def off_solution(self, index: int) -> bool:
+        """Every range of this anchor for :data:`SHORT_RANGE_WINDOW_S` read shorter than its
+        distance from the filter by more than the gate (:meth:`measure` keeps the count).
+
+        No NLOS shortens a range; a filter that fits two anchors of a face end on the circle
+        about them does that to the third (random world 0 at its own length: 2.6 m off at a σ
+        of 6 cm, the third anchor's ranges 2.8 m short and rejected one by one). Each
+        re-acquisition attempt starts the count again. The engine restarts the position only
+        (``Engine._reacquire``)."""
         k = int(self.data.anchor_index[index])
         since = self.short_since[k]
         if np.isfinite(since) and float(self.data.t[index]) - since >= SHORT_RANGE_WINDOW_S:
             self.short_since[:] = np.nan
             return True
-        pos = ctx.layout.slice(POSITION)
-        sigma = math.sqrt(float(ctx.covariance[pos, pos][0, 0] + ctx.covariance[pos, pos][1, 1]))
-        anchor = self.anchors[int(self.data.anchor_index[index])]
-        return sigma > max(1.0, 0.1 * float(np.linalg.norm(ctx.position_enu - anchor)))
+        return False
 
     def _fix(
         self, t0: float, t1: float, prior: tuple[NDArray[np.float64], NDArray[np.float64]]
