@@ -488,34 +488,29 @@ class UwbRanges(Plugin):
             z += float(h[att] @ x_att + h[pos] @ x_pos + h[vel] @ x_vel)
         if self.options.range_bias:
             h[layout.slice(self.bias_block).start + k] = -1.0
-        variance = self._variance(index, k, ctx, z, h, spread) + spread
-        self._count_short(index, k, z, float(h @ ctx.covariance @ h) + variance)
+        innovation = z - float(h @ ctx.x)  # against the corrected estimate, as the gate sees it
+        predicted = float(h @ ctx.covariance @ h) + spread
+        noise = self._variance(index, k, innovation, predicted)
+        self._count_short(index, k, innovation, predicted + noise)
+        variance = noise + spread
         # A slow machine: the lever arm's heading column is the consider state (docstring).
         consider = (att.start + 2,) if ctx.observable_force else ()
         return Measurement(np.array([z]), h[None, :], np.array([[variance]]), consider=consider)
 
-    def _count_short(self, index: int, k: int, z: float, s: float) -> None:
+    def _count_short(self, index: int, k: int, innovation: float, s: float) -> None:
         """Track how long anchor ``k``'s ranges have read short of the filter's distance by
-        more than the screen's gate (``z = r̃ − r`` against its variance ``s``)."""
-        gate = chi2_threshold(1, self.options.adaptive_screen_probability)
-        if z > 0.0 and z * z > gate * s:
+        more than the screen's gate (``innovation = r̃ − r`` against its variance ``s``)."""
+        if innovation > 0.0 and innovation * innovation > self._screen * s:
             if not np.isfinite(self.short_since[k]):
                 self.short_since[k] = float(self.data.t[index])
         else:
             self.short_since[k] = np.nan
 
-    def _variance(
-        self,
-        index: int,
-        k: int,
-        ctx: MeasurementContext,
-        z: float,
-        h: NDArray[np.float64],
-        spread: float,
-    ) -> float:
-        """R of anchor ``k``: fixed, or the variational-Bayes update (module docstring); the
-        range's ``spread`` over the position's uncertainty (:func:`second_order_range`) is
-        part of the innovation's variance, not a ranging noise to learn."""
+    def _variance(self, index: int, k: int, nu: float, s: float) -> float:
+        """R of anchor ``k``: fixed, or the variational-Bayes update (module docstring) from
+        the innovation ``nu`` and its predicted variance ``s = h P hᵀ`` plus the range's
+        spread over the position's uncertainty (:func:`second_order_range`), which is part of
+        the innovation's variance, not a ranging noise to learn."""
         if not self.adaptive:
             return self.options.sigma_range_m**2
         t = float(self.data.t[index])
@@ -526,8 +521,6 @@ class UwbRanges(Plugin):
             if self.alpha[k] < 0.5:
                 self.alpha[k], self.beta[k] = self._alpha0, self._beta0
         self.t_last[k] = t
-        nu = z - float(h @ ctx.x)
-        s = float(h @ ctx.covariance @ h) + spread
         r = self.beta[k] / self.alpha[k]
         if nu * nu / (s + r) > self._screen:
             return r
