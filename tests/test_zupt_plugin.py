@@ -237,6 +237,43 @@ def test_no_zero_angular_rate_where_the_gyros_show_a_turn(turn_dps: float) -> No
     assert m is not None and m.z.shape == ((2,) if turn_dps else (5,))
 
 
+@pytest.mark.parametrize("persistence_s", [3.0, 1e6])
+def test_a_standstill_whose_zarus_contradict_the_vertical_gyro_bias_widens_it(
+    persistence_s: float,
+) -> None:
+    """``zero_velocity: false``: a filter that takes its vertical gyro bias for known (a
+    datasheet claiming 1 °/h, a bias of 72 °/h) finds every ZARU of a standstill beyond the
+    turn test. Left out for good (``zaru_persistence_s`` out of reach), the bias stays wrong
+    and the heading runs off at the bias while its σ claims a fraction of a degree; after
+    3 s of them the bias and the heading are widened to what the ZARU shows, and the ZARUs
+    that follow find the bias."""
+    bias = math.radians(0.02)
+    rec = static_recording(spec={**SEED002_SPEC, "gyro_bias_deg_h": 720.0})  # the detector's
+    initial = rec.meta.initial
+    sigma = initial.sigma.model_copy(update={"attitude_deg": [0.01] * 3})
+    rec = replace(
+        rec,
+        meta=rec.meta.model_copy(update={"initial": initial.model_copy(update={"sigma": sigma})}),
+        imu=replace(rec.imu, gyro=rec.imu.gyro + np.array([0.0, 0.0, bias])),
+    )
+    zupt = {
+        "type": "zupt",
+        "zero_velocity": False,
+        "zero_angular_rate": True,
+        "motion_constraint": {},
+        "zaru_persistence_s": persistence_s,
+    }
+    config = parse_config({"name": "zaru", "imu": {"gyro_bias_deg_h": 1.0}, "plugins": [zupt]})
+    result = Engine(config, rec).run()
+    estimate, sigma = result.state_estimate("gyro_bias")
+    yaw = float(result.solution.attitude[-1, 2])
+    yaw_error = math.remainder(yaw, 2.0 * math.pi)  # the truth is yaw 0
+    yaw_sigma = float(result.state_estimate("attitude")[1][2])
+    widened = persistence_s < 30.0  # the recording is 30 s long
+    assert (abs(estimate[2] - bias) < 3.0 * sigma[2]) == widened
+    assert (abs(yaw_error) < 3.0 * yaw_sigma) == widened
+
+
 def test_odometer_rest_withholds_zupts_while_the_encoder_creeps() -> None:
     """A machine creeping off at mm/s is still to the IMU detector; with ``odometer_rest_mps``
     an epoch needs every encoder reading of the past ``guard_s`` below that speed."""

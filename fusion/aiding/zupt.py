@@ -72,7 +72,12 @@ motion constraint, when one is configured, at every epoch): for a machine that c
 smoothly for the IMU to tell it from a stop (a shearer hauling at a few m/min without
 cutting), where a zero velocity would hold the position while the machine drives on. Such a
 machine may still turn (creeping off a face-end stop through the conveyor's snake), so the
-ZARU is left out wherever the filter's own velocity is clear of zero (:func:`_moving`).
+ZARU is left out wherever the filter's own velocity is clear of zero (:func:`_moving`), and
+where its own ``H P Hᵀ + R`` does not explain it (:func:`_turning`: a turn the detector took for
+a stop). A standstill whose every ZARU is so contradicted for ``zaru_persistence_s`` shows the
+vertical gyro bias wrong instead: the bias, the heading and what the heading moved since the
+last explained ZARU are widened to the ZARU's innovation (:func:`_heading_widening`, through
+:meth:`Zupt.process_noise`), and the ZARUs that follow find the bias.
 
 Epochs and delay: epochs are a regular grid at ``update_rate_hz`` on the IMU clock; the epoch at
 ``t`` uses the label of the last IMU sample at or before ``t``. In causal mode that label is
@@ -118,7 +123,7 @@ from fusion.aiding.reference_speed import reading_noise
 from fusion.aiding.zaru import ZeroAngularRate
 from fusion.earth import OMEGA_IE, normal_gravity
 from fusion.encoder import reading_intervals
-from fusion.error_model import POSITION, VELOCITY, ImuNoise, StateBlock
+from fusion.error_model import ATTITUDE, GYRO_BIAS, POSITION, VELOCITY, ImuNoise, StateBlock
 from fusion.plugin import Measurement, MeasurementContext, Plugin, PluginOptions
 from fusion.recording import ImuSpec, Recording
 
@@ -329,6 +334,44 @@ def _turning(zaru: Measurement, ctx: MeasurementContext) -> bool:
     return statistic > _MOVING_THRESHOLD
 
 
+def _heading_widening(
+    zaru: Measurement, ctx: MeasurementContext, elapsed_s: float, travel_m: float
+) -> dict[str, NDArray[np.float64]] | None:
+    """What a ZARU that contradicts the vertical gyro bias for a whole standstill shows the
+    filter missed (the variances to add, by block), or None where its vertical row is
+    explained (the contradiction is a rotation about a horizontal axis: the machine moves).
+
+    With ``ν`` and ``S`` the vertical row's innovation and predicted variance, the bias was
+    off by about ``ν`` since the last ZARU the filter could explain, ``elapsed_s`` ago: its
+    variance takes ``ν² − S``, the heading's ``(ν² − S) elapsed_s²`` (integrated over that
+    span), the horizontal velocity's that heading variance × speed² and the horizontal
+    position's (travel/2)² × the heading variance (a heading error growing along
+    ``travel_m``), at most travel² (a heading off by more than a radian). The vertical gyro
+    bias is the one nothing but the ZARU observes; the horizontal ones the tilt holds against
+    gravity throughout, so a horizontal residual is a pitching or rolling machine, and
+    widening those biases would turn a smooth haul's roll into a tilt error
+    (docs/design/2026-11-29-zaru-contradicting-the-bias.md).
+    """
+    row = 2  # the body z gyro: the heading's, within the tilt of a face
+    s = float(zaru.H[row] @ ctx.covariance @ zaru.H[row] + zaru.R[row, row])
+    nu2 = float(zaru.z[row]) ** 2
+    if nu2 <= _VERTICAL_THRESHOLD * s:
+        return None
+    bias = nu2 - s
+    heading = bias * elapsed_s**2
+    speed2 = float(ctx.velocity[:2] @ ctx.velocity[:2])
+    position = travel_m**2 * min(heading / 4.0, 1.0)
+    return {
+        GYRO_BIAS: np.array([0.0, 0.0, bias]),
+        ATTITUDE: np.array([0.0, 0.0, heading]),
+        VELOCITY: np.array([speed2 * min(heading, 1.0)] * 2 + [0.0]),
+        POSITION: np.array([position, position, 0.0]),
+    }
+
+
+_VERTICAL_THRESHOLD = float(chi2.ppf(MOVING_PROBABILITY, 1))
+
+
 def _moving(ctx: MeasurementContext) -> bool:
     """Whether the SINS velocity is clear of zero under its own covariance,
     ``vᵀ P_v⁻¹ v > χ²₃(`` :data:`MOVING_PROBABILITY` ``)``: the filter knows the machine moves.
@@ -390,6 +433,13 @@ class ZuptOptions(PluginOptions):
     )
     angular_rate_floor_dps: float = Field(
         0.002, ge=0, description="ZARU noise added to the averaged ARW (standstill vibration)"
+    )
+    zaru_persistence_s: float = Field(
+        3.0,
+        gt=0,
+        description="zero_velocity: false: a standstill whose every ZARU for this long contradicts"
+        " the vertical gyro bias shows that bias wrong, and widens it and the heading (the"
+        " engine's lost-lock window, filter.lock_window_s)",
     )
     motion_constraint: OdometerOptions | None = Field(
         None, description="odometer motion_constraint options: apply it while moving (eq. 18)"
@@ -468,6 +518,7 @@ class Zupt(Plugin):
             if options.motion_constraint is not None
             else None
         )
+        self.start_run()
 
     def _odometer_at_rest(self, speed_mps: float) -> NDArray[np.bool_]:
         """Epochs with at least one odometer reading in the past ``guard_s`` (the epoch
@@ -531,6 +582,9 @@ class Zupt(Plugin):
         (docs/design/2026-11-28-starts-and-seed000.md). Only the ZUPT releases: an odometer's
         own zero readings (σ of a centimetre per second) do not pin the velocity so hard, and
         releasing after every odometer start cost the odometer-only filters accuracy."""
+        widening = self._widening.pop(index, None)
+        if widening is not None:
+            return widening
         release = self.releases.get(index)
         if release is None:
             return None
@@ -576,7 +630,11 @@ class Zupt(Plugin):
         return self.constraint.state_blocks() if self.constraint is not None else ()
 
     def start_run(self) -> None:
-        """Forget a run's rest scatter and the constraint's learned noise."""
+        """Forget a run's rest scatter, the constraint's learned noise and the ZARUs' record."""
+        self._contradicted_since: float | None = None
+        self._explained_at = float(self._epochs[0]) if self._epochs.size else 0.0
+        self._travel_m = 0.0
+        self._widening: dict[int, dict[str, NDArray[np.float64]]] = {}
         if self.zero_rate is not None:
             self.zero_rate.start_run()
         if self.constraint is not None:
@@ -589,7 +647,9 @@ class Zupt(Plugin):
     def measure(self, index: int, ctx: MeasurementContext) -> Measurement | None:
         """Zero velocity (and/or angular rate) at a ZUPT epoch; else the motion constraint (if
         configured) or None."""
+        self._travel_m += float(np.hypot(*ctx.velocity[:2])) / self.options.update_rate_hz
         if not self.zupt_epoch[index]:
+            self._contradicted_since = None
             return self.constraint.measure(index, ctx) if self.constraint is not None else None
         h = np.zeros((3, ctx.layout.dim))
         h[:, ctx.layout.slice(VELOCITY)] = np.eye(3)
@@ -603,6 +663,34 @@ class Zupt(Plugin):
         # The detector may be wrong about a creeping machine: the constraint holds either way,
         # and the ZARU only while the filter's own velocity does not show it moving.
         constraint = self.constraint.measure(index, ctx) if self.constraint is not None else None
-        if _moving(ctx) or _turning(zaru, ctx):
+        if _moving(ctx):
+            self._contradicted_since = None
             return constraint
+        if _turning(zaru, ctx):
+            self._contradicted(index, t, zaru, ctx)
+            return constraint
+        self._contradicted_since = None
+        self._explained_at = t
+        self._travel_m = 0.0
         return zaru if constraint is None else constraint.stacked_with(zaru)
+
+    def _contradicted(
+        self, index: int, t: float, zaru: Measurement, ctx: MeasurementContext
+    ) -> None:
+        """Count a ZARU left out as a turn; after ``zaru_persistence_s`` of them in one
+        standstill, widen what its vertical row shows wrong (:func:`_heading_widening`) at the
+        next epoch, from which on the ZARU is explained again.
+
+        A turn the detector took for a stop is left out; but so was every ZARU of a real
+        standstill once the vertical gyro bias had walked off during a haul, and the bias then
+        stayed wrong for good while the heading ran off at a σ of degrees. A smooth haul that
+        looks still mostly does so for seconds between the detector's flickers; a standstill
+        lasts minutes (docs/design/2026-11-29-zaru-contradicting-the-bias.md)."""
+        if self._contradicted_since is None:
+            self._contradicted_since = t
+        if t - self._contradicted_since < self.options.zaru_persistence_s:
+            return
+        widening = _heading_widening(zaru, ctx, t - self._explained_at, self._travel_m)
+        if widening is not None:
+            self._widening[index + 1] = widening
+            self._contradicted_since = None
