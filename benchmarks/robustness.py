@@ -300,7 +300,9 @@ def run_one(config: FusionConfig, recording: Recording) -> list[dict[str, Any]]:
         "wall_s": result.wall_time_s,
         "realtime_factor": result.realtime_factor,
     }
-    rows = [{"solution": "forward", **score(result.solution, recording, after), **common}]
+    rows: list[dict[str, Any]] = [
+        {"solution": "forward", **score(result.solution, recording, after), **common}
+    ]
     if result.smoothed is not None:
         rows.append({"solution": "smoothed", **score(result.smoothed, recording, after), **common})
         worse = rows[1]["horizontal_rms"] > rows[0]["horizontal_rms"]

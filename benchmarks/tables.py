@@ -13,7 +13,7 @@ from __future__ import annotations
 import csv
 import io
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -113,7 +113,12 @@ def _aggregate(column: Column, rows: Sequence[dict[str, Any]]) -> Cell:
     arr = _finite([r.get(column.field) for r in rows])
     if arr.size == 0:
         return Cell(nan, nan, 0, None, True)
-    funcs = {"median": np.median, "max": np.max, "min": np.min, "sum": np.sum}
+    funcs: dict[str, Callable[[Any], Any]] = {
+        "median": np.median,
+        "max": np.max,
+        "min": np.min,
+        "sum": np.sum,
+    }
     if column.agg not in funcs:
         raise ValueError(f"column {column.field}: unknown agg {column.agg!r}")
     return Cell(float(funcs[column.agg](arr)), nan, int(arr.size), None, True)
