@@ -59,7 +59,7 @@ from fusion.kalman import KalmanFilter, UpdateResult
 from fusion.lock import LOST_LOCK, REACQUIRE, LockMonitor, fading_factor
 from fusion.memory import release_freed_memory
 from fusion.observability import Observability, ObservabilityTracker
-from fusion.plugin import MeasurementContext, Plugin, PluginError, create_plugin
+from fusion.plugin import WIDEN, MeasurementContext, Plugin, PluginError, create_plugin
 from fusion.recording import ImuSpec, Recording, check_recording
 from fusion.rows import RowBuffer
 from fusion.screening import ScreeningReport, screen_recording
@@ -408,8 +408,11 @@ class Engine:
                 t_cov = te
                 if jumps is not None:
                     jumps.step(te, bank)
+            widened: list[FaultEvent] = []
             released = (
-                self._process_noise(sources[i:j], indices[i:j]) if self._noise_sources else None
+                self._process_noise(sources[i:j], indices[i:j], te, widened)
+                if self._noise_sources
+                else None
             )
             if released is not None:  # an identity time update: the smoother's prior has it
                 identity = np.eye(self.layout.dim)
@@ -441,6 +444,7 @@ class Engine:
                 self._smoothing_step(
                     smoother, bank, te, phi, prior, posterior, dx, sins.nav if is_output else None
                 )
+            bank.faults.extend(widened)  # after the smoothing step: one filter throughout
             if is_output:
                 self._output_epoch(rows, bank, sins, te)
             if progress is not None and (i // report_every) != (j // report_every):
@@ -686,19 +690,29 @@ class Engine:
         return res.accepted
 
     def _process_noise(
-        self, sources: NDArray[np.integer], indices: NDArray[np.integer]
+        self,
+        sources: NDArray[np.integer],
+        indices: NDArray[np.integer],
+        t: float,
+        widened: list[FaultEvent],
     ) -> NDArray[np.float64] | None:
-        """The process noise (full layout) the plugins measured at this instant add
-        (:meth:`fusion.plugin.Plugin.process_noise`), or None."""
+        """The process noise (full layout) the plugins measured at instant ``t`` add
+        (:meth:`fusion.plugin.Plugin.process_noise`), or None; the ``faults.csv`` line of each
+        that gives a reason goes to ``widened``."""
         added = None
         for src, index in zip(sources.tolist(), indices.tolist(), strict=True):
             if src not in self._noise_sources:  # outputs, grid and store epochs are negative
                 continue
-            blocks = self.plugins[src].process_noise(index)
-            for block, variances in (blocks or {}).items():
+            noise = self.plugins[src].process_noise(index)
+            if noise is None:
+                continue
+            for block, variances in noise.variances.items():
                 if added is None:
                     added = np.zeros(self.layout.dim)
                 added[self.layout.slice(block)] += variances
+            if noise.reason is not None:
+                name = self.plugins[src].name
+                widened.append(FaultEvent(t, name, math.nan, math.nan, WIDEN, noise.reason))
         return None if added is None else np.diag(added)
 
     def _alone(self, src: int, t: float) -> bool:

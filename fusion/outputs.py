@@ -23,6 +23,7 @@ from fusion.jumps import JUMP
 from fusion.lock import LOST_LOCK, REACQUIRE
 from fusion.metrics import compute_metrics, write_metrics_json
 from fusion.output_dir import FIGURE_FORMATS, RECORDING_FILES, RUN_JSON
+from fusion.plugin import WIDEN
 from fusion.recording import Recording
 from fusion.solution import write_solution
 from fusion.state_history import write_states
@@ -201,8 +202,8 @@ def summary(result: RunResult, recording: Recording) -> str:
         lines.append(
             f"faults     {actions.count(ISOLATE)} isolations, {actions.count(READMIT)} "
             f"re-admissions, {actions.count(JUMP)} state jumps taken in, "
-            f"{actions.count(LOST_LOCK)} lost locks, {actions.count(REACQUIRE)} re-acquisitions"
-            " (faults.csv)"
+            f"{actions.count(LOST_LOCK)} lost locks, {actions.count(REACQUIRE)} re-acquisitions,"
+            f" {actions.count(WIDEN)} widenings (faults.csv)"
         )
     if result.smoother_rejected:
         lines.append(

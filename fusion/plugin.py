@@ -53,6 +53,22 @@ class PluginOptions(BaseModel):
 
 
 @dataclass(frozen=True)
+class ProcessNoise:
+    """What a plugin's readings show the filter's model missed before one of its epochs
+    (:meth:`Plugin.process_noise`)."""
+
+    variances: dict[str, NDArray[np.float64]]
+    """Variances to add, by state block name (e.g. ``VELOCITY``)."""
+    reason: str | None = None
+    """Why, when it is the filter's own belief found wrong (a ``faults.csv`` line, action
+    :data:`WIDEN`); None for noise the model merely leaves out (a start the encoder shows)."""
+
+
+WIDEN = "widen"
+"""``faults.csv`` action of a plugin's :class:`ProcessNoise` that gives a reason."""
+
+
+@dataclass(frozen=True)
 class Measurement:
     """An error-state measurement ``z = H δx + v``, ``v ~ N(0, R)``."""
 
@@ -235,12 +251,13 @@ class Plugin(ABC):
         here. Default: nothing to forget."""
         return None
 
-    def process_noise(self, index: int) -> dict[str, NDArray[np.float64]] | None:
-        """Variances to add to state blocks (by name, e.g. ``VELOCITY``) before epoch ``index``
-        is measured: what this sensor's readings show the filter's model missed since its last
-        epoch (a machine that began to move where zero-velocity updates held it still). The
-        engine adds them as an identity time update of every filter, so the federated locals,
-        the smoother and the observability report see process noise. Default: none."""
+    def process_noise(self, index: int) -> ProcessNoise | None:
+        """Variances to add to state blocks before epoch ``index`` is measured: what this
+        sensor's readings show the filter's model missed since its last epoch (a machine that
+        began to move where zero-velocity updates held it still). The engine adds them as an
+        identity time update of every filter, so the federated locals, the smoother and the
+        observability report see process noise, and writes a ``faults.csv`` line for one that
+        gives a reason. Default: none."""
         return None
 
     @abstractmethod

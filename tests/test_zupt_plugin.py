@@ -30,7 +30,7 @@ from fusion.config import FusionConfig, load_config, parse_config
 from fusion.engine import Engine, RunResult
 from fusion.error_model import G0, POSITION, VELOCITY
 from fusion.metrics import interpolate_truth
-from fusion.plugin import Measurement, PluginError, create_plugin
+from fusion.plugin import WIDEN, Measurement, PluginError, create_plugin
 from fusion.recording import ImuSpec, OdometerData, OdometerMeta, Recording, read_recording
 from fusion.sim.simulate import simulate
 from tests.plugin_support import (
@@ -272,6 +272,9 @@ def test_a_standstill_whose_zarus_contradict_the_vertical_gyro_bias_widens_it(
     widened = persistence_s < 30.0  # the recording is 30 s long
     assert (abs(estimate[2] - bias) < 3.0 * sigma[2]) == widened
     assert (abs(yaw_error) < 3.0 * yaw_sigma) == widened
+    lines = [f for f in result.faults if f.action == WIDEN]  # faults.csv says so, once
+    assert len(lines) == int(widened)
+    assert all(f.local == "zupt" and "vertical gyro bias" in f.reason for f in lines)
 
 
 def test_odometer_rest_withholds_zupts_while_the_encoder_creeps() -> None:
@@ -299,9 +302,9 @@ def test_odometer_rest_withholds_zupts_while_the_encoder_creeps() -> None:
     released = [k for k in range(epochs.size) if guarded.process_noise(k) is not None]
     assert released == [int(np.flatnonzero(epochs >= creeping)[0])]
     noise = guarded.process_noise(released[0])
-    assert noise is not None
-    np.testing.assert_allclose(noise[VELOCITY], [0.006**2, 0.006**2, 0.0], rtol=0.01)
-    np.testing.assert_allclose(noise[POSITION], [0.0006**2, 0.0006**2, 0.0], rtol=0.02)
+    assert noise is not None and noise.reason is None  # a start, not a fault: no faults.csv line
+    np.testing.assert_allclose(noise.variances[VELOCITY], [0.006**2, 0.006**2, 0.0], rtol=0.01)
+    np.testing.assert_allclose(noise.variances[POSITION], [0.0006**2, 0.0006**2, 0.0], rtol=0.02)
     kept = Zupt("zupt", Zupt.Options(odometer_rest_mps=0.006, release_at_motion=False), rec)
     assert all(kept.process_noise(k) is None for k in range(epochs.size))
 

@@ -124,7 +124,7 @@ from fusion.aiding.zaru import ZeroAngularRate
 from fusion.earth import OMEGA_IE, normal_gravity
 from fusion.encoder import reading_intervals
 from fusion.error_model import ATTITUDE, GYRO_BIAS, POSITION, VELOCITY, ImuNoise, StateBlock
-from fusion.plugin import Measurement, MeasurementContext, Plugin, PluginOptions
+from fusion.plugin import Measurement, MeasurementContext, Plugin, PluginOptions, ProcessNoise
 from fusion.recording import ImuSpec, Recording
 
 BIAS_COVERAGE = 0.999
@@ -567,10 +567,12 @@ class Zupt(Plugin):
                 )
         return releases
 
-    def process_noise(self, index: int) -> dict[str, NDArray[np.float64]] | None:
-        """Where the encoder ends a run of ZUPTs (option ``release_at_motion``,
-        :meth:`_releases`): the largest speed² of its new readings on the horizontal velocity
-        variances, their travel² on the position's.
+    def process_noise(self, index: int) -> ProcessNoise | None:
+        """After a standstill whose ZARUs contradicted the vertical gyro bias
+        (:meth:`_contradicted`): that bias's and the heading's widening, with its
+        ``faults.csv`` reason. Where the encoder ends a run of ZUPTs (option
+        ``release_at_motion``, :meth:`_releases`): the largest speed² of its new readings on the
+        horizontal velocity variances, their travel² on the position's (no reason: a start).
 
         The machine began to move at an instant neither sensor can tell: a quantized encoder
         counts nothing until the first count's worth of travel, and a shearer's gentle start
@@ -589,10 +591,12 @@ class Zupt(Plugin):
         if release is None:
             return None
         speed, travel = release
-        return {
-            VELOCITY: np.array([speed**2, speed**2, 0.0]),
-            POSITION: np.array([travel**2, travel**2, 0.0]),
-        }
+        return ProcessNoise(
+            {
+                VELOCITY: np.array([speed**2, speed**2, 0.0]),
+                POSITION: np.array([travel**2, travel**2, 0.0]),
+            }
+        )
 
     @staticmethod
     def _thresholds(options: ZuptOptions, recording: Recording) -> StationaryThresholds:
@@ -634,7 +638,7 @@ class Zupt(Plugin):
         self._contradicted_since: float | None = None
         self._explained_at = float(self._epochs[0]) if self._epochs.size else 0.0
         self._travel_m = 0.0
-        self._widening: dict[int, dict[str, NDArray[np.float64]]] = {}
+        self._widening: dict[int, ProcessNoise] = {}
         if self.zero_rate is not None:
             self.zero_rate.start_run()
         if self.constraint is not None:
@@ -690,7 +694,15 @@ class Zupt(Plugin):
             self._contradicted_since = t
         if t - self._contradicted_since < self.options.zaru_persistence_s:
             return
-        widening = _heading_widening(zaru, ctx, t - self._explained_at, self._travel_m)
+        elapsed = t - self._explained_at
+        widening = _heading_widening(zaru, ctx, elapsed, self._travel_m)
         if widening is not None:
-            self._widening[index + 1] = widening
+            bias = math.degrees(math.sqrt(float(widening[GYRO_BIAS][2]))) * 3600.0
+            heading = math.degrees(math.sqrt(float(widening[ATTITUDE][2])))
+            reason = (
+                f"every ZARU for {self.options.zaru_persistence_s:g} s of a standstill contradicts"
+                f" the vertical gyro bias: its σ widened by {bias:.3g} °/h and the heading's by"
+                f" {heading:.3g}° (the bias off since the last explained ZARU, {elapsed:.0f} s ago)"
+            )
+            self._widening[index + 1] = ProcessNoise(widening, reason)
             self._contradicted_since = None
