@@ -344,7 +344,7 @@ def _heading_widening(
     With ``ν`` and ``S`` the vertical row's innovation and predicted variance, the bias was
     off by about ``ν`` since the last ZARU the filter could explain, ``elapsed_s`` ago: its
     variance takes ``ν² − S``, the heading's ``(ν² − S) elapsed_s²`` (integrated over that
-    span), the horizontal velocity's that heading variance × speed² and the horizontal
+    span; at most π²), the horizontal velocity's that heading variance × speed² and the horizontal
     position's (travel/2)² × the heading variance (a heading error growing along
     ``travel_m``), at most travel² (a heading off by more than a radian). The vertical gyro
     bias is the one nothing but the ZARU observes; the horizontal ones the tilt holds against
@@ -358,7 +358,7 @@ def _heading_widening(
     if nu2 <= _VERTICAL_THRESHOLD * s:
         return None
     bias = nu2 - s
-    heading = bias * elapsed_s**2
+    heading = min(bias * elapsed_s**2, math.pi**2)  # at most anywhere on the circle
     speed2 = float(ctx.velocity[:2] @ ctx.velocity[:2])
     position = travel_m**2 * min(heading / 4.0, 1.0)
     return {
@@ -701,7 +701,7 @@ class Zupt(Plugin):
             heading = math.degrees(math.sqrt(float(widening[ATTITUDE][2])))
             reason = (
                 f"every ZARU for {self.options.zaru_persistence_s:g} s of a standstill contradicts"
-                f" the vertical gyro bias: its σ widened by {bias:.3g} °/h and the heading's by"
+                f" the vertical gyro bias: widened by a σ of {bias:.3g} °/h, the heading by one of"
                 f" {heading:.3g}° (the bias off since the last explained ZARU, {elapsed:.0f} s ago)"
             )
             self._widening[index + 1] = ProcessNoise(widening, reason)
