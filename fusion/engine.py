@@ -770,16 +770,13 @@ class Engine:
             return False
         rot = ctx.rotation_to_local
         error = rot @ (ctx.position_enu - fix.position_enu)  # δp of the nominal, local metres
+        velocity_error, states, covariance = np.zeros(3), np.r_[6:9], rot @ fix.covariance @ rot.T
         if velocity:
             velocity_error = ctx.velocity - rot @ fix.velocity_enu
-            sins.correct(velocity_error, np.zeros(3), error, np.zeros(3), np.zeros(3))
-            covariance = scipy.linalg.block_diag(
-                rot @ fix.velocity_covariance @ rot.T, rot @ fix.covariance @ rot.T
-            )
-            bank.restart_common(np.r_[0:3, 6:9], covariance)
-        else:
-            sins.correct(np.zeros(3), np.zeros(3), error, np.zeros(3), np.zeros(3))
-            bank.restart_common(np.r_[6:9], rot @ fix.covariance @ rot.T)
+            states = np.r_[0:3, 6:9]
+            covariance = scipy.linalg.block_diag(rot @ fix.velocity_covariance @ rot.T, covariance)
+        sins.correct(velocity_error, np.zeros(3), error, np.zeros(3), np.zeros(3))
+        bank.restart_common(states, covariance)
         reason = f"{plugin.name} alone moved the position by {np.linalg.norm(error):.3g} m"
         bank.faults.append(
             FaultEvent(t, plugin.name, float(np.linalg.norm(error)), math.nan, REACQUIRE, reason)
