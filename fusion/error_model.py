@@ -441,7 +441,7 @@ def observable_force(
     force removed altogether 5° at 16°. It is for a slow machine only: a foot's swing or a
     car's braking is brief against the covariance step and partly shrunk, and the velocity
     error it really causes is then missing from the model (PyShoe's foot-mounted trials: ARMSE
-    a median 22× the dataset's best_error with it, 4.8× without), so the configs of such
+    a median 16× the dataset's best_error with it, 3.4× without), so the configs of such
     platforms set ``filter.observable_force: false``.
     """
     jacobian = np.empty((2, 6))  # the horizontal rows of δf^n over (φ, ∇): [(f^n×)ᵀ… | C_b^n]

@@ -93,6 +93,17 @@ def test_pyshoe_armse_ignores_yaw_and_start_offset_but_not_shape_errors() -> Non
     assert 0.01 < pyshoe_armse(est, ref) < 0.2
 
 
+def test_pyshoe_armse_is_the_rms_over_the_two_axes_not_the_error_norm() -> None:
+    # A straight walk east; the estimate's second half 0.2 m north of it. The bearing at 0.8 m
+    # is untouched, so each epoch of the second half is 0.2 m off: 0.2/√2 by PyShoe's
+    # compute_error, half the epochs.
+    x = np.linspace(0.0, 5.0, 501)
+    ref = np.column_stack([x, np.zeros_like(x), np.zeros_like(x)])
+    est = ref.copy()
+    est[x > 2.5, 1] += 0.2
+    assert pyshoe_armse(est, ref) == pytest.approx(0.5 * 0.2 / np.sqrt(2.0), rel=0.01)
+
+
 def test_least_squares_alignment_recovers_rotation_and_translation() -> None:
     ref = _track()
     rng = np.random.default_rng(0)
