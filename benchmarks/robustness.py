@@ -15,7 +15,9 @@ Per run and solution (forward; smoothed where the configuration smooths) the row
 
 * ``horizontal_rms``, ``horizontal_max`` — horizontal error (m) against truth.csv;
 * ``nz_e_sumsq``, ``nz_n_sumsq``, ``nz_count`` — Σ(ε/σ)² east / north and the epoch count, so
-  that the table pools RMS(ε/σ) over the worlds (``sqrt(Σ / n)``);
+  that the table pools RMS(ε/σ) over the worlds (``sqrt(Σ / n)``); ``nz_yaw_sumsq`` and
+  ``nz_yaw_count`` the same for the yaw against the σ of the run's state history (forward
+  only; issue 29 asks the yaw's σ to keep its promise too);
 * ``isolations`` — isolation rows in the run's fault list (federated filters; NaN otherwise
   and on worlds with injected faults, so that the table's per-hour figure counts false
   isolations only), ``duration_h`` the recording's length;
@@ -49,7 +51,7 @@ from benchmarks.runner import Method, Task, TaskResult, load_method_config
 from benchmarks.tables import Column, RowSpec, TableSpec
 from fusion.attitude import dcm_from_euler
 from fusion.config import FusionConfig, load_config
-from fusion.engine import Engine
+from fusion.engine import Engine, RunResult
 from fusion.fault_detection import ISOLATE
 from fusion.metrics import interpolate_truth
 from fusion.recording import Recording, read_recording
@@ -155,17 +157,20 @@ def _table(configs: Sequence[str], title: str) -> list[TableSpec]:
             Column("horizontal_max", "h. max worst (m)", 2, agg="max"),
             Column("nz_e", "RMS(ε/σ) E", 2, agg="pooled_rms"),
             Column("nz_n", "RMS(ε/σ) N", 2, agg="pooled_rms"),
+            Column("nz_yaw", "RMS(ε/σ) yaw", 2, agg="pooled_rms"),
             Column("isolations", "false isolations / h", 2, agg="per_hour"),
             Column("smoothed_worse", "smoothed > forward (worlds)", 0, agg="sum"),
             Column("near_anchor_max", "worst h. error near anchors (m)", 2, agg="max"),
         ),
         headline="horizontal_rms",
         note="n = worlds run; median and worst over the worlds that did not fail; RMS(ε/σ)"
-        " pooled over every epoch of every world; false isolations: isolation rows of the"
-        " federated filters per hour of recording on worlds without injected faults (— for"
-        " centralized filters); smoothed > forward: worlds whose smoothed horizontal RMS"
-        " exceeds the forward one; near anchors: epochs with the UWB tag within"
-        f" {NEAR_ANCHOR_M:g} m of an anchor after the first pass reached the far face end"
+        " pooled over every epoch of every world (yaw: forward, against the σ of the state"
+        " history; — where the configuration estimates no attitude); false isolations:"
+        " isolation rows of the federated filters per hour of recording on worlds without"
+        " injected faults (— for centralized filters); smoothed > forward: worlds whose"
+        " smoothed horizontal RMS exceeds the forward one; near anchors: epochs with the UWB"
+        f" tag within {NEAR_ANCHOR_M:g} m of an anchor after the first pass reached the far"
+        " face end"
         " (sins_uwb is the configuration it is meant for)",
     )
     ratio = TableSpec(
@@ -281,6 +286,23 @@ def score(solution: Solution, recording: Recording, after: float | None) -> dict
     return row
 
 
+def yaw_consistency(result: RunResult, recording: Recording) -> dict[str, float]:
+    """Σ(ε/σ)² and the epoch count of the forward yaw error (wrapped to ±180°) against the
+    yaw σ of the run's state history; empty when the run keeps none."""
+    if result.states is None:
+        return {}
+    truth = recording.truth
+    assert truth is not None
+    solution = result.solution
+    inside, _, _, att, _ = interpolate_truth(truth, solution.t)
+    error = np.angle(np.exp(1j * (solution.attitude[inside, 2] - att[:, 2])))
+    sigma = np.radians(result.states.euler_sigma()[inside, 2].astype(np.float64))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        z = error / sigma
+    z = z[np.isfinite(z)]
+    return {"nz_yaw_sumsq": float(np.sum(z**2)), "nz_yaw_count": float(z.size)}
+
+
 def run_one(config: FusionConfig, recording: Recording) -> list[dict[str, Any]]:
     """Run one configuration on one recording: a row per solution (without the task fields).
 
@@ -301,7 +323,12 @@ def run_one(config: FusionConfig, recording: Recording) -> list[dict[str, Any]]:
         "realtime_factor": result.realtime_factor,
     }
     rows: list[dict[str, Any]] = [
-        {"solution": "forward", **score(result.solution, recording, after), **common}
+        {
+            "solution": "forward",
+            **score(result.solution, recording, after),
+            **yaw_consistency(result, recording),
+            **common,
+        }
     ]
     if result.smoothed is not None:
         rows.append({"solution": "smoothed", **score(result.smoothed, recording, after), **common})

@@ -180,11 +180,11 @@ class StateHistory:
         factors = np.array([STATE_UNITS[b.unit] for _, b, _ in own], dtype=np.float32)
         values += [*(self.estimate[rows] * factors).T]
         values += [*sigma[:, layout.slice(POSITION)].T, *sigma[:, layout.slice(VELOCITY)].T]
-        values += [*self._euler_sigma(rows).T]
+        values += [*self.euler_sigma(rows).T]
         values += [*(sigma[:, [i for i, _, _ in own]] * factors).T]
         return dict(zip(self.column_names(), values, strict=True))
 
-    def _euler_sigma(self, rows: slice) -> NDArray[np.float32]:
+    def euler_sigma(self, rows: slice = slice(None)) -> NDArray[np.float32]:
         """1-σ of roll, pitch, yaw (deg) from the misalignment's covariance: ``J P_φ Jᵀ``."""
         attitude = self.layout.slice(ATTITUDE)
         variance = np.square(self.sigma[rows, attitude].astype(np.float64))

@@ -45,6 +45,23 @@ def test_a_failing_run_is_counted_and_the_others_go_on() -> None:
     assert ok["nz_e_count"] > 0 and ok["duration_h"] == pytest.approx(60 / 3600, rel=0.01)
 
 
+def test_a_filter_s_row_holds_its_yaw_consistency_and_dead_reckoning_s_none() -> None:
+    task = Task(
+        suite="robustness-smoke",
+        group="worlds",
+        scenario="longwall-random-short",
+        seed=1,
+        methods=(Method("sins_od_ckf", "sins_od_ckf"), Method("dr", "dr_traditional")),
+        scenario_overrides=("duration_s=60",),
+        executor="robustness",
+    )
+    rows = {r["method"]: r for r in execute(task).rows}
+    ckf = rows["sins_od_ckf"]
+    assert ckf["failed"] == 0.0 and ckf["nz_yaw_count"] == ckf["nz_e_count"]
+    assert 0.2 < math.sqrt(ckf["nz_yaw_sumsq"] / ckf["nz_yaw_count"]) < 2.0
+    assert "nz_yaw_count" not in rows["dr"]
+
+
 def test_aggregates() -> None:
     rows = [
         {"group": "g", "method": "m", "solution": "forward", "x": 1.0, "failed": 0.0,
