@@ -55,8 +55,12 @@ Tightly coupled ranges (:class:`UwbRanges`)
 
     ``max_range_m``: a range whose predicted tag–anchor distance ``r̃_i`` *and* measured range
     both exceed it produces nothing (outside the anchor's working range; seed 004 §1 uses the
-    anchors within ~10 m). An NLOS-inflated reading of a near anchor still reaches the gate and
-    is counted there, and so does a near anchor's reading when the SINS has drifted far: its
+    anchors within ~10 m). None (the default, and every shipped filter): a range the tag
+    reports is a measurement however long, and the gate and the second-order terms answer for
+    it; a cut leaves the middle of a long face without ranges, and the filter then meets the
+    next face end's clustered anchors off across the face at a small σ
+    (docs/design/2026-11-29-uwb-reach.md). An NLOS-inflated reading of a near anchor still
+    reaches the gate and is counted there, and so does a near anchor's reading when the SINS has drifted far: its
     rejections tell the engine that the lock is lost (:mod:`fusion.lock`), and
     :meth:`UwbRanges.reacquire` puts the filter back at a least-squares fix of the last
     ranges — never at one of two mirror solutions (see "Mirror solutions" below) that neither
