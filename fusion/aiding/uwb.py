@@ -60,8 +60,8 @@ Tightly coupled ranges (:class:`UwbRanges`)
     it; a cut leaves the middle of a long face without ranges, and the filter then meets the
     next face end's clustered anchors off across the face at a small σ
     (docs/design/2026-11-29-uwb-reach.md). An NLOS-inflated reading of a near anchor still
-    reaches the gate and is counted there, and so does a near anchor's reading when the SINS has drifted far: its
-    rejections tell the engine that the lock is lost (:mod:`fusion.lock`), and
+    reaches the gate and is counted there, and so does a near anchor's reading when the SINS
+    has drifted far: its rejections tell the engine that the lock is lost (:mod:`fusion.lock`), and
     :meth:`UwbRanges.reacquire` puts the filter back at a least-squares fix of the last
     ranges — never at one of two mirror solutions (see "Mirror solutions" below) that neither
     the face nor the SINS's own covariance tells apart: the shearer is on its face, so a
