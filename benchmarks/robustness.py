@@ -49,7 +49,7 @@ import numpy as np
 
 from benchmarks.runner import Method, Task, TaskResult, load_method_config
 from benchmarks.tables import Column, RowSpec, TableSpec
-from fusion.attitude import dcm_from_euler
+from fusion.attitude import dcm_from_euler, wrap_angle
 from fusion.config import FusionConfig, load_config
 from fusion.engine import Engine, RunResult
 from fusion.fault_detection import ISOLATE
@@ -295,7 +295,7 @@ def yaw_consistency(result: RunResult, recording: Recording) -> dict[str, float]
     assert truth is not None
     solution = result.solution
     inside, _, _, att, _ = interpolate_truth(truth, solution.t)
-    error = np.angle(np.exp(1j * (solution.attitude[inside, 2] - att[:, 2])))
+    error = wrap_angle(solution.attitude[inside, 2] - att[:, 2])
     sigma = np.radians(result.states.euler_sigma()[inside, 2].astype(np.float64))
     with np.errstate(divide="ignore", invalid="ignore"):
         z = error / sigma
