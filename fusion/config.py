@@ -330,6 +330,15 @@ class FilterOptions(_Strict):
         " off where the constraint alone gives the velocity, which it then takes for the turn"
         " direction (docs/design/2026-11-27-observability.md, 2026-11-27-full-length-worlds.md)",
     )
+    invariant_error: Literal["none", "heading", "full"] = Field(
+        "none",
+        description="keep the covariance in the right-invariant error (fusion.invariant_error)"
+        " of the heading alone or of the whole attitude: a turn of the whole trajectory is then"
+        " one fixed direction, the specific force drops out of its dynamics, and a source that"
+        " cannot see the heading finds no heading column; the plugins' rows, the feedback and"
+        " the outputs stay in the standard error. Exclusive with observability_constrained,"
+        " which projects the same direction out",
+    )
     discretization: Literal["series", "van_loan"] = "series"
     error_model: Literal["full", "low_speed"] = "full"
     coning_sculling: bool = True
@@ -340,6 +349,16 @@ class FilterOptions(_Strict):
         "multiplies meta.yaml's initial sigmas; three decades either way (a 5-cm σ becomes"
         " 50 m): beyond, the prior is meaningless and its variance swamps double precision",
     )
+
+    @model_validator(mode="after")
+    def _one_heading_treatment(self) -> FilterOptions:
+        if self.invariant_error != "none" and self.observability_constrained:
+            raise ValueError(
+                "invariant_error and observability_constrained both keep a turn of the"
+                " trajectory unobserved, the one by its coordinates, the other by projecting it"
+                " out of Φ and H: choose one"
+            )
+        return self
 
 
 class PluginBlock(BaseModel):

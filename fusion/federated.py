@@ -535,6 +535,16 @@ class FederatedFilter:
         )
         self.predict(np.eye(dim), noise)
 
+    def change_coordinates(self, a: NDArray[np.float64]) -> None:
+        """Every local in its own index set and the master in the common states (A mixes only
+        common states, so each one's block of A is its own change of coordinates; the shares
+        scale P and commute with it)."""
+        for f in self.locals:
+            f.kf.change_coordinates(a[f.block])
+        if self.master is not None:
+            self.master.change_coordinates(a[COMMON, COMMON])
+        self._fused = None
+
     def common_covariance(self) -> NDArray[np.float64]:
         """The fused covariance of the common states (eq. 35)."""
         return self._global()[1]

@@ -99,6 +99,11 @@ class FilterBank(Protocol):
         up to a bound, the increase added as uncorrelated noise
         (:func:`fusion.lock.inflation_variances`)."""
 
+    def change_coordinates(self, a: NDArray[np.float64]) -> None:
+        """Express every estimate in new coordinates ``x' = A x`` (A over the full layout, the
+        identity outside the common states) (:meth:`fusion.kalman.KalmanFilter.
+        change_coordinates`)."""
+
     @property
     def smoothing_dim(self) -> int:
         """Dimension of the state the smoother works on."""
@@ -196,6 +201,10 @@ class CentralizedFilter:
     def inflate_common(self, factor: float) -> None:
         """See :class:`FilterBank`."""
         self.kf.add_variances(COMMON, inflation_variances(np.diagonal(self.kf.P)[COMMON], factor))
+
+    def change_coordinates(self, a: NDArray[np.float64]) -> None:
+        """See :class:`FilterBank`."""
+        self.kf.change_coordinates(a)
 
     @property
     def smoothing_dim(self) -> int:

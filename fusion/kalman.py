@@ -314,6 +314,14 @@ class KalmanFilter:
         self.P[np.ix_(indices, indices)] = covariance
         self.columns[indices, :] = 0.0
 
+    def change_coordinates(self, a: NDArray[np.float64]) -> None:
+        """Express the state in new coordinates ``x' = A x``: ``P ← A P Aᵀ``, and the signature
+        and cross-covariance columns (covariances of the state with fixed quantities) ``← A E``
+        (:mod:`fusion.invariant_error`)."""
+        self.x = a @ self.x
+        self.P = a @ self.P @ a.T
+        self.columns = a @ self.columns
+
     def add_variances(self, indices: slice | NDArray[np.intp], added: NDArray[np.float64]) -> None:
         """Add ``added`` to the variances of states ``indices`` as uncorrelated noise: the
         covariances stay, so the correlations shrink (an inflation, :mod:`fusion.lock`).

@@ -91,6 +91,12 @@ class Measurement:
     consider states: their uncertainty enters S and the other states' gains through their
     columns of H and their covariances, their own gain is zero (:meth:`KalmanFilter.update`).
     For a column that only a linearization at an erroneous state makes informative."""
+    velocity_at: NDArray[np.float64] | None = None
+    """The ENU velocity (m/s) at which the rows' attitude columns were evaluated, where it is not
+    the nominal one: zero for a zero-velocity update, the column velocity of a motion
+    constraint. With ``filter.invariant_error`` the engine takes ``δv = ξ_v + v × ξ_φ`` at this
+    velocity (:mod:`fusion.invariant_error`), so that a source that cannot see a turn finds no
+    heading column; None: the nominal velocity."""
 
     def stacked_with(self, other: Measurement) -> Measurement:
         """This measurement and ``other`` as one (rows appended, independent noise apart from
@@ -105,6 +111,7 @@ class Measurement:
             self.at_rest + tuple(n for n in other.at_rest if n not in self.at_rest),
             _stacked_noise(self, other),
             self.consider,
+            self.velocity_at if self.velocity_at is not None else other.velocity_at,
         )
 
 

@@ -79,6 +79,12 @@ CORRECTION_PROBABILITY = 0.9999
 CORRECTION_THRESHOLD = float(chi2.ppf(CORRECTION_PROBABILITY, 3))
 """χ²₃ bound of a plausible smoothing correction (:func:`plausible_correction`)."""
 Rows = tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]
+ToStandard = Callable[
+    [NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]],
+    tuple[NDArray[np.float64], NDArray[np.float64]],
+]
+"""``(nav, x, P) → (x, P)`` in the standard error at the nominal state ``nav``, for a filter that
+keeps another error (:mod:`fusion.invariant_error`)."""
 FIELDS = ("offset", "gain", "covariance", "feedback")
 MATRICES = ("gain", "covariance")
 Segment = dict[str, NDArray[np.float64]]
@@ -297,12 +303,20 @@ class WindowedSmoother:
         Called with each step's time (after the step is stored): whether a window closes there.
     memory_budget_mb
         Per-window in-memory budget before spilling to disk.
+    to_standard
+        Where the filter's error is not the standard one: its conversion at an output epoch's
+        nominal state (the recursion runs in the filter's own coordinates, as it stored them).
     """
 
     def __init__(
-        self, dim: int, window_end_due: Callable[[float], bool], memory_budget_mb: float
+        self,
+        dim: int,
+        window_end_due: Callable[[float], bool],
+        memory_budget_mb: float,
+        to_standard: ToStandard | None = None,
     ) -> None:
         self.dim = dim
+        self.to_standard = to_standard
         self.window_end_due = window_end_due
         self.budget = memory_budget_mb
         self.store = StepStore(dim, memory_budget_mb)
@@ -331,7 +345,10 @@ class WindowedSmoother:
         self.store.append(t, phi, prior, posterior, feedback, nav_after is not None)
         if nav_after is not None:
             self._navs.append(nav_after)
-            self._forward.append(posterior[1][POSITION, POSITION])
+            covariance = posterior[1]
+            if self.to_standard is not None:
+                covariance = self.to_standard(nav_after, posterior[0], covariance)[1]
+            self._forward.append(covariance[POSITION, POSITION])
         return self.close_window() if self.window_end_due(t) and self.store.n > 1 else None
 
     def close_window(self) -> Rows:
@@ -345,6 +362,8 @@ class WindowedSmoother:
         covariances = self._forward.take().copy()
         if times.size:
             for j, d, p in rts(store):
+                if self.to_standard is not None:
+                    d, p = self.to_standard(navs[j], d, p)
                 if not plausible_correction(d[POSITION], p[POSITION, POSITION], covariances[j]):
                     self.rejected += 1
                     continue

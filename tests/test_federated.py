@@ -299,7 +299,10 @@ def test_stores_come_after_the_fusion(carrier_two_cycles: Path) -> None:
     )
 
 
-def test_five_source_partition_tracks_the_centralized_filter(tmp_path: Path) -> None:
+@pytest.mark.parametrize("invariant_error", ["none", "heading"])
+def test_five_source_partition_tracks_the_centralized_filter(
+    tmp_path: Path, invariant_error: str
+) -> None:
     """full_afkf without fault isolation against full_ckf: four locals (the kinematic one owns
     the odometer's states), adaptive magnetometer and UWB noise, gates. Each local's updates are
     exact in information form; what differs is second order — the second plugin of a local in
@@ -311,7 +314,9 @@ def test_five_source_partition_tracks_the_centralized_filter(tmp_path: Path) -> 
     (the preset's 40 Hz: the same, at four times the work). ``filter.observable_force`` off in
     both: with it a range update considers the heading (Schmidt, :mod:`fusion.aiding.uwb`), and a
     local's Schmidt update is not its measurement's information, which is what the fusion
-    adds up (with it on the two tracks differ by 2 mm)."""
+    adds up (with it on the two tracks differ by 2 mm). The same with the covariances in the
+    invariant error of the heading (:mod:`fusion.invariant_error`), which every local takes
+    over its own index set."""
     simulate(
         "longwall-200m", tmp_path / "rec", seed=1, overrides=["duration_s=150", "uwb.rate_hz=10"]
     )
@@ -321,6 +326,7 @@ def test_five_source_partition_tracks_the_centralized_filter(tmp_path: Path) -> 
     ckf_data = load_config(CONFIGS / "full_ckf.yaml").model_dump()
     for data in (fed_data, ckf_data):
         data["filter"]["observable_force"] = False
+        data["filter"]["invariant_error"] = invariant_error
         for block in data["plugins"]:
             block.pop("epoch_grid_s", None)
     fed = Engine(parse_config(fed_data), rec).run()

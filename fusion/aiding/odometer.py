@@ -403,7 +403,9 @@ class Odometer(Plugin):
         if self._speed_state:
             h[1, ctx.layout.slice(f"{self.name}.speed")] = 1.0
         z, h = z[self.rows], h[self.rows]
-        return Measurement(z, h, np.diag(self._noise(z, h, ctx)))
+        return Measurement(
+            z, h, np.diag(self._noise(z, h, ctx)), velocity_at=column_velocity.copy()
+        )
 
     def _noise(
         self, z: NDArray[np.float64], h: NDArray[np.float64], ctx: MeasurementContext

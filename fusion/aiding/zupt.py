@@ -657,7 +657,9 @@ class Zupt(Plugin):
             return self.constraint.measure(index, ctx) if self.constraint is not None else None
         h = np.zeros((3, ctx.layout.dim))
         h[:, ctx.layout.slice(VELOCITY)] = np.eye(3)
-        zupt = Measurement(ctx.velocity.copy(), h, np.eye(3) * self.variance)
+        zupt = Measurement(
+            ctx.velocity.copy(), h, np.eye(3) * self.variance, velocity_at=np.zeros(3)
+        )
         if self.zero_rate is None:
             return zupt
         t = self._epochs[index]

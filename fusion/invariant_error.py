@@ -1,0 +1,185 @@
+"""Right-invariant error coordinates: the filter's covariance kept in the error of the invariant
+EKF, the plugins' measurements and the SINS feedback in the error of :mod:`fusion.error_model`.
+
+The error state of :mod:`fusion.error_model` (``δv``, ``φ``, ``δp``, biases) measures the velocity
+and position errors in a fixed frame. Turn the whole estimated trajectory by α about the vertical
+and that error moves along ``N = [δv = v̂ × e_U, φ = e_U, δp = p̂ × e_U]`` (:mod:`fusion.
+yaw_nullspace`), a direction that changes with the nominal velocity; its dynamics carry the
+nominal specific force, ``δv̇ = fⁿ × φ``, and whatever fluctuation that force shows (a tilt error
+times gravity, cutting vibration) "observes" the heading at a standstill.
+
+The right-invariant error of the extended pose (Barrau & Bonnabel, *The invariant extended Kalman
+filter as a stable observer*, IEEE TAC 62(4), 2017, §V; with IMU biases as in Hartley et al.,
+*Contact-aided invariant extended Kalman filtering for robot state estimation*, IJRR 39(4), 2020)
+is, to first order and in this module's sign convention (``C̃ = (I − φ×) C``),
+
+    ξ_φ = φ,   ξ_v = δv − v × φ,   ξ_p = δp − p × φ,   biases unchanged,
+
+that is ``δx = T ξ`` with ``T`` the identity but for the blocks ``v×`` (velocity ← attitude) and
+``p×`` (position ← attitude); ``p`` is the ENU position about the recording's origin and ``v``,
+``p`` the true velocity and position (in practice their best estimate). A turn of the
+trajectory is then ``ξ = (e_U, 0, 0, …)`` at every instant, and its dynamics no longer hold the
+specific force:
+
+    ξ̇_φ = φ̇,   ξ̇_v = −g × ξ_φ + C∇ + v × Cε + …,   ξ̇_p = ξ_v + p × Cε + …
+
+(``F_ξ = T⁻¹ (F T − Ṫ)``: the ``fⁿ`` of ``F`` cancels the ``fⁿ`` of ``v̇`` exactly, so ``F_ξ`` is
+computed from ``F`` at zero specific force and ``v̇₀ = g − (2ω_ie + ω_en) × v``). Since ``g`` is
+vertical, the heading enters no velocity derivative, and a source that cannot see a turn (a
+zero velocity, a body-frame velocity evaluated at the same velocity as ``T``) has no heading
+column: what is unobservable stays so without constraining anything (compare the
+observability-constrained EKF, :mod:`fusion.yaw_nullspace`, which projects it out).
+
+The plugins keep their measurement rows in the error of :mod:`fusion.error_model`; the engine
+multiplies them by ``T`` at the velocity the plugin linearized at
+(:attr:`fusion.plugin.Measurement.velocity_at`: zero for a zero-velocity update, the column
+velocity for a motion constraint) and feeds back ``T ξ̂`` at the nominal state. The covariance
+read by plugins and written to the outputs is ``T P_ξ Tᵀ``. Differences from the invariant EKF
+proper: the feedback is first order (the SINS is corrected, not retracted on the group), and the
+IMU biases' columns use the nominal state (the "imperfect" InEKF of Hartley et al.).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numpy.typing import NDArray
+
+from fusion import earth, kernels
+from fusion.error_model import ATTITUDE, POSITION, VELOCITY, ErrorModel, discretize
+from fusion.strapdown import HGT, LAT, VEL
+
+_V = slice(0, 3)
+_PHI = slice(3, 6)
+_P = slice(6, 9)
+AXES = {"heading": (2,), "full": (0, 1, 2)}
+"""Attitude components whose turn the coordinates carry: the heading alone (a turn about the
+local vertical, the symmetry gravity leaves) or all three (the invariant EKF proper)."""
+
+
+def _skew(v: NDArray[np.float64]) -> NDArray[np.float64]:
+    x, y, z = float(v[0]), float(v[1]), float(v[2])
+    return np.array([[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]])
+
+
+class InvariantCoordinates:
+    """``δx = T ξ`` over the attitude components ``axes`` (:data:`AXES`): ``T = I + A`` with
+    ``A`` the blocks ``v×`` and ``p×`` restricted to those columns (``A² = 0``, so
+    ``T⁻¹ = I − A``)."""
+
+    def __init__(self, axes: tuple[int, ...]) -> None:
+        self.columns = np.array([_PHI.start + a for a in axes], dtype=np.intp)
+        self._axes = list(axes)
+
+    def _blocks(
+        self, velocity: NDArray[np.float64], position: NDArray[np.float64]
+    ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        return _skew(velocity)[:, self._axes], _skew(position)[:, self._axes]
+
+    def transform(
+        self, dim: int, velocity: NDArray[np.float64], position: NDArray[np.float64]
+    ) -> NDArray[np.float64]:
+        """``T`` (dim × dim) at ENU ``velocity`` (m/s) and ``position`` about the origin (m)."""
+        return self._with(dim, velocity, position, 1.0)
+
+    def inverse_transform(
+        self, dim: int, velocity: NDArray[np.float64], position: NDArray[np.float64]
+    ) -> NDArray[np.float64]:
+        """``T⁻¹ = I − A``."""
+        return self._with(dim, velocity, position, -1.0)
+
+    def _with(
+        self, dim: int, velocity: NDArray[np.float64], position: NDArray[np.float64], sign: float
+    ) -> NDArray[np.float64]:
+        t = np.eye(dim)
+        v_block, p_block = self._blocks(velocity, position)
+        t[_V, self.columns] = sign * v_block
+        t[_P, self.columns] = sign * p_block
+        return t
+
+    def rows(
+        self, h: NDArray[np.float64], velocity: NDArray[np.float64], position: NDArray[np.float64]
+    ) -> NDArray[np.float64]:
+        """``H T``: measurement rows over the standard error expressed over ``ξ``."""
+        v_block, p_block = self._blocks(velocity, position)
+        rows = h.copy()
+        rows[:, self.columns] += h[:, _V] @ v_block + h[:, _P] @ p_block
+        return rows
+
+    def apply(
+        self,
+        x: NDArray[np.float64],
+        velocity: NDArray[np.float64],
+        position: NDArray[np.float64],
+        sign: float = 1.0,
+    ) -> NDArray[np.float64]:
+        """``T x`` (``sign`` 1) or ``T⁻¹ x`` (−1) for a vector or the columns of a matrix
+        (the rows of ``A`` are velocity and position, its columns the carried attitude)."""
+        return self._apply(x, *self._blocks(velocity, position), sign)
+
+    def _apply(
+        self,
+        x: NDArray[np.float64],
+        v_block: NDArray[np.float64],
+        p_block: NDArray[np.float64],
+        sign: float,
+    ) -> NDArray[np.float64]:
+        y = x.copy()
+        carried = x[self.columns]
+        y[_V] += sign * (v_block @ carried)
+        y[_P] += sign * (p_block @ carried)
+        return y
+
+    def congruent(
+        self,
+        p: NDArray[np.float64],
+        velocity: NDArray[np.float64],
+        position: NDArray[np.float64],
+        sign: float = 1.0,
+    ) -> NDArray[np.float64]:
+        """``T P Tᵀ`` (``sign`` 1) or ``T⁻¹ P T⁻ᵀ`` (−1)."""
+        blocks = self._blocks(velocity, position)
+        once = self._apply(p, *blocks, sign)
+        return self._apply(once.T, *blocks, sign).T
+
+    def to_standard(
+        self,
+        x: NDArray[np.float64],
+        p: NDArray[np.float64],
+        velocity: NDArray[np.float64],
+        position: NDArray[np.float64],
+    ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """``(T x, T P Tᵀ)``."""
+        blocks = self._blocks(velocity, position)
+        once = self._apply(p, *blocks, 1.0)
+        return self._apply(x, *blocks, 1.0), self._apply(once.T, *blocks, 1.0).T
+
+    def transition(
+        self,
+        model: ErrorModel,
+        nav: NDArray[np.float64],
+        f_n: NDArray[np.float64],
+        c_b_n: NDArray[np.float64],
+        position: NDArray[np.float64],
+        dt: float,
+    ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """Φ_ξ and Q_d,ξ over ``dt`` at the nominal state: ``F_ξ = T⁻¹ (F T − Ṫ)`` with ``F``
+        at the specific force ``f_n`` and ``Ṫ`` at ``v̇ = fⁿ + g − (2ω_ie + ω_en) × v``, the
+        same force, which therefore cancels from the columns ``T`` carries."""
+        layout = model.layout
+        assert (layout.slice(VELOCITY), layout.slice(ATTITUDE), layout.slice(POSITION)) == (
+            _V,
+            _PHI,
+            _P,
+        )
+        f, q = model.continuous(nav, f_n, c_b_n)
+        v = nav[VEL : VEL + 3]
+        lat, h = float(nav[LAT]), float(nav[HGT])
+        _, _, w_ie, w_en = kernels.frame_rates(lat, h, v)
+        gravity = np.array([0.0, 0.0, -float(earth.normal_gravity(lat, h))])
+        acceleration = f_n + gravity - np.cross(2.0 * w_ie + w_en, v)
+        f_t = self.rows(f, v, position)  # F T
+        f_t[_V, self.columns] -= _skew(acceleration)[:, self._axes]  # − Ṫ
+        f_t[_P, self.columns] -= _skew(v)[:, self._axes]
+        f_xi = self.apply(f_t, v, position, -1.0)
+        q_xi = self.congruent(q, v, position, -1.0)
+        return discretize(f_xi, q_xi, dt, model.discretization)
