@@ -51,7 +51,7 @@ from fusion.error_model import (
 )
 from fusion.fault_detection import FaultEvent
 from fusion.federated import FederatedFilter
-from fusion.filter_bank import COMMON, CentralizedFilter, FilterBank
+from fusion.filter_bank import CentralizedFilter, FilterBank
 from fusion.imu_gaps import GapBridge, bridge_imu_gaps
 from fusion.innovations import InnovationLog
 from fusion.invariant_error import AXES, InvariantCoordinates
@@ -570,20 +570,18 @@ class Engine:
         self, nav: NDArray[np.float64], x: NDArray[np.float64], p: NDArray[np.float64]
     ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         """``(T x, T P Tᵀ)`` at nominal state ``nav`` (the smoother's output epochs)."""
-        position = self.frame.point(float(nav[LAT]), float(nav[LON]), float(nav[HGT]))[0]
         if self._coordinates is None:
             return x, p
+        position = self.frame.point(float(nav[LAT]), float(nav[LON]), float(nav[HGT]))[0]
         return self._coordinates.to_standard(x, p, nav[VEL : VEL + 3], position)
 
     def _position_covariance(self, bank: FilterBank, sins: Strapdown) -> NDArray[np.float64]:
         """The position error's covariance in local metres."""
         if self._coordinates is None:
             return bank.position_covariance()
-        t = self._transform(sins)[COMMON, COMMON]
+        common = self._coordinates.congruent(bank.common_covariance(), *self._point(sins))
         position = self.layout.slice(POSITION)
-        rows = t[position]
-        covariance: NDArray[np.float64] = rows @ bank.common_covariance() @ rows.T
-        return covariance
+        return common[position, position]
 
     def _turn(self, layout: StateLayout, sins: Strapdown) -> NDArray[np.float64]:
         """The error of a unit turn about the vertical through the frame's origin at the

@@ -23,12 +23,17 @@ specific force:
 
     ξ̇_φ = φ̇,   ξ̇_v = −g × ξ_φ + C∇ + v × Cε + …,   ξ̇_p = ξ_v + p × Cε + …
 
-(``F_ξ = T⁻¹ (F T − Ṫ)``: the ``fⁿ`` of ``F`` cancels the ``fⁿ`` of ``v̇`` exactly, so ``F_ξ`` is
-computed from ``F`` at zero specific force and ``v̇₀ = g − (2ω_ie + ω_en) × v``). Since ``g`` is
-vertical, the heading enters no velocity derivative, and a source that cannot see a turn (a
-zero velocity, a body-frame velocity evaluated at the same velocity as ``T``) has no heading
-column: what is unobservable stays so without constraining anything (compare the
-observability-constrained EKF, :mod:`fusion.yaw_nullspace`, which projects it out).
+(``F_ξ = T⁻¹ (F T − Ṫ)``, ``F`` and ``Ṫ`` at the same specific force, whose ``fⁿ`` then cancels
+exactly from the columns ``T`` carries). Since ``g`` is vertical, the heading enters no velocity
+derivative, and a source that cannot see a turn (a zero velocity, a body-frame velocity
+evaluated at the same velocity as ``T``) has no heading column: what is unobservable stays so
+without constraining anything (compare the observability-constrained EKF,
+:mod:`fusion.yaw_nullspace`, which projects it out).
+
+``T`` may carry the heading alone (:data:`AXES` ``heading``: the turn about the vertical, the one
+symmetry gravity leaves; the tilt keeps the standard error and its ``fⁿ × φ``) or the whole
+attitude (``full``). Measured effects, and why neither is a shipped default yet:
+``docs/design/2026-11-29-invariant-error.md``.
 
 The plugins keep their measurement rows in the error of :mod:`fusion.error_model`; the engine
 multiplies them by ``T`` at the velocity the plugin linearized at
