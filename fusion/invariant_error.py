@@ -42,9 +42,8 @@ velocity for a motion constraint) and feeds back ``T ξ̂`` at the nominal state
 read by plugins and written to the outputs is ``T P_ξ Tᵀ``. Differences from the invariant EKF
 proper: the feedback is first order (the SINS is corrected, not retracted on the group), and the
 IMU biases' columns use the nominal state (the "imperfect" InEKF of Hartley et al.). And ``T``
-follows the corrected nominal velocity while ``P_ξ`` is kept across a feedback, where the
-invariant EKF measures against the true velocity, which no correction moves: with a motion
-constraint alone on a straight face that mismatch makes the speed along the track ring
+follows the corrected nominal velocity while ``P_ξ`` is kept across a feedback: with a motion
+constraint alone on a straight face the speed along the track then rings
 (docs/design/2026-11-29-invariant-error.md).
 """
 
