@@ -469,8 +469,8 @@ class Engine:
         if smoother is not None:
             smoother.close_window()
             smoothed = self._solution(*smoother.take_rows())
-        final, final_covariance = self._estimate(bank, sins)
-        filter_covariance = final_covariance if self._coordinates is None else bank.estimate()[1]
+        filter_estimate = bank.estimate()
+        final, final_covariance = self._estimate(filter_estimate, sins)
         return RunResult(
             solution=solution,
             layout=self.layout,
@@ -485,7 +485,7 @@ class Engine:
             smoother_peak_steps=smoother.peak_steps if smoother is not None else 0,
             smoother_rejected=smoother.rejected if smoother is not None else 0,
             screening=self.screening,
-            observability=observed.report(filter_covariance),
+            observability=observed.report(filter_estimate[1]),
             states=recorder.history(solution, self.frame) if recorder is not None else None,
         )
 
@@ -499,23 +499,25 @@ class Engine:
         if rows.recorder is None and not sampled:
             rows.position_covariance.append(self._position_covariance(bank, sins))
             return
-        estimate, covariance = self._estimate(bank, sins)
+        filter_estimate = bank.estimate()
+        estimate, covariance = self._estimate(filter_estimate, sins)
         position = self.layout.slice(POSITION)
         rows.position_covariance.append(covariance[position, position])
         if rows.recorder is not None:
             rows.recorder.record(estimate, covariance)
         if sampled:  # in the coordinates of the tracker's prior, the filter's own
-            rows.observed.sample(t, covariance if self._coordinates is None else bank.estimate()[1])
+            rows.observed.sample(t, filter_estimate[1])
 
     def _estimate(
-        self, bank: FilterBank, sins: Strapdown
+        self, filter_estimate: tuple[NDArray[np.float64], NDArray[np.float64]], sins: Strapdown
     ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-        """Estimate and covariance of every state, in the standard error; the IMU biases whole
-        (the part the SINS already compensates added to the filter's residual)."""
-        estimate, covariance = bank.estimate()
+        """Estimate and covariance of every state, in the standard error, from the bank's
+        ``filter_estimate`` (:meth:`FilterBank.estimate`, in the filter's coordinates); the IMU
+        biases whole (the part the SINS already compensates added to the filter's residual)."""
+        estimate, covariance = filter_estimate
         if self._coordinates is not None:
             estimate, covariance = self._coordinates.to_standard(
-                estimate, covariance, *self._point(sins)
+                estimate, covariance, *self._point(sins.nav)
             )
         estimate[self.layout.slice(GYRO_BIAS)] += sins.gyro_bias
         estimate[self.layout.slice(ACCEL_BIAS)] += sins.accel_bias
@@ -525,13 +527,13 @@ class Engine:
         """Feed the common-state estimate ``dx`` back into the SINS, which takes the standard
         error (``T dx`` with ``filter.invariant_error``)."""
         if self._coordinates is not None:
-            dx = self._coordinates.apply(dx, *self._point(sins))
+            dx = self._coordinates.apply(dx, *self._point(sins.nav))
         sins.correct(dx[0:3], dx[3:6], dx[6:9], dx[9:12], dx[12:15])
 
-    def _point(self, sins: Strapdown) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-        """Nominal ENU velocity and ENU position about the origin: where ``T`` is evaluated
-        (:mod:`fusion.invariant_error`)."""
-        nav = sins.nav
+    def _point(self, nav: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """ENU velocity and ENU position about the origin of the packed navigation state
+        ``nav``: where ``T`` is evaluated (:mod:`fusion.invariant_error`) and the turn of
+        :mod:`fusion.yaw_nullspace` taken."""
         position = self.frame.point(float(nav[LAT]), float(nav[LON]), float(nav[HGT]))[0]
         return nav[VEL : VEL + 3].copy(), position
 
@@ -539,13 +541,13 @@ class Engine:
         """``T`` at the nominal state over the full layout."""
         if self._coordinates is None:
             return np.eye(self.layout.dim)
-        return self._coordinates.transform(self.layout.dim, *self._point(sins))
+        return self._coordinates.transform(self.layout.dim, *self._point(sins.nav))
 
     def _inverse_transform(self, sins: Strapdown) -> NDArray[np.float64]:
         """``T⁻¹`` at the nominal state over the full layout."""
         if self._coordinates is None:
             return np.eye(self.layout.dim)
-        return self._coordinates.inverse_transform(self.layout.dim, *self._point(sins))
+        return self._coordinates.inverse_transform(self.layout.dim, *self._point(sins.nav))
 
     def _in_filter_coordinates(
         self, noise: NDArray[np.float64], sins: Strapdown
@@ -554,7 +556,7 @@ class Engine:
         ``filter.invariant_error``)."""
         if self._coordinates is None:
             return noise
-        return self._coordinates.congruent(noise, *self._point(sins), -1.0)
+        return self._coordinates.congruent(noise, *self._point(sins.nav), -1.0)
 
     def _transition(
         self, sins: Strapdown, f_n: NDArray[np.float64], dt: float
@@ -563,7 +565,7 @@ class Engine:
         (:meth:`fusion.invariant_error.InvariantCoordinates.transition`)."""
         if self._coordinates is None:
             return self.model.discrete(sins.nav, f_n, sins.c_b_n, dt)
-        position = self._point(sins)[1]
+        position = self._point(sins.nav)[1]
         return self._coordinates.transition(self.model, sins.nav, f_n, sins.c_b_n, position, dt)
 
     def _standard_at(
@@ -572,23 +574,20 @@ class Engine:
         """``(T x, T P Tᵀ)`` at nominal state ``nav`` (the smoother's output epochs)."""
         if self._coordinates is None:
             return x, p
-        position = self.frame.point(float(nav[LAT]), float(nav[LON]), float(nav[HGT]))[0]
-        return self._coordinates.to_standard(x, p, nav[VEL : VEL + 3], position)
+        return self._coordinates.to_standard(x, p, *self._point(nav))
 
     def _position_covariance(self, bank: FilterBank, sins: Strapdown) -> NDArray[np.float64]:
         """The position error's covariance in local metres."""
         if self._coordinates is None:
             return bank.position_covariance()
-        common = self._coordinates.congruent(bank.common_covariance(), *self._point(sins))
+        common = self._coordinates.congruent(bank.common_covariance(), *self._point(sins.nav))
         position = self.layout.slice(POSITION)
         return common[position, position]
 
     def _turn(self, layout: StateLayout, sins: Strapdown) -> NDArray[np.float64]:
         """The error of a unit turn about the vertical through the frame's origin at the
         nominal state (:func:`fusion.yaw_nullspace.turn_direction`)."""
-        nav = sins.nav
-        position = self.frame.point(float(nav[LAT]), float(nav[LON]), float(nav[HGT]))[0]
-        return turn_direction(layout, nav[VEL : VEL + 3], position)
+        return turn_direction(layout, *self._point(sins.nav))
 
     def _constrained(self, phi: NDArray[np.float64], sins: Strapdown) -> NDArray[np.float64]:
         """Φ that carries the turn at the last propagated state onto the turn at this one
@@ -691,7 +690,7 @@ class Engine:
         nav = sins.nav
         x, covariance = kf.x.copy(), (kf.P if shared is None else shared).view()
         if self._coordinates is not None:  # plugins read the standard error
-            velocity, position = self._point(sins)
+            velocity, position = self._point(nav)
             x, covariance = self._coordinates.to_standard(x, covariance, velocity, position)
         covariance.flags.writeable = False
         return MeasurementContext(

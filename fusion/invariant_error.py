@@ -53,6 +53,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from fusion import earth, kernels
+from fusion.attitude import skew
 from fusion.error_model import ATTITUDE, POSITION, VELOCITY, ErrorModel, discretize
 from fusion.strapdown import HGT, LAT, VEL
 
@@ -62,11 +63,6 @@ _P = slice(6, 9)
 AXES = {"heading": (2,), "full": (0, 1, 2)}
 """Attitude components whose turn the coordinates carry: the heading alone (a turn about the
 local vertical, the symmetry gravity leaves) or all three (the invariant EKF proper)."""
-
-
-def _skew(v: NDArray[np.float64]) -> NDArray[np.float64]:
-    x, y, z = float(v[0]), float(v[1]), float(v[2])
-    return np.array([[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]])
 
 
 class InvariantCoordinates:
@@ -81,28 +77,19 @@ class InvariantCoordinates:
     def _blocks(
         self, velocity: NDArray[np.float64], position: NDArray[np.float64]
     ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-        return _skew(velocity)[:, self._axes], _skew(position)[:, self._axes]
+        return skew(velocity)[:, self._axes], skew(position)[:, self._axes]
 
     def transform(
         self, dim: int, velocity: NDArray[np.float64], position: NDArray[np.float64]
     ) -> NDArray[np.float64]:
         """``T`` (dim × dim) at ENU ``velocity`` (m/s) and ``position`` about the origin (m)."""
-        return self._with(dim, velocity, position, 1.0)
+        return self.apply(np.eye(dim), velocity, position)
 
     def inverse_transform(
         self, dim: int, velocity: NDArray[np.float64], position: NDArray[np.float64]
     ) -> NDArray[np.float64]:
         """``T⁻¹ = I − A``."""
-        return self._with(dim, velocity, position, -1.0)
-
-    def _with(
-        self, dim: int, velocity: NDArray[np.float64], position: NDArray[np.float64], sign: float
-    ) -> NDArray[np.float64]:
-        t = np.eye(dim)
-        v_block, p_block = self._blocks(velocity, position)
-        t[_V, self.columns] = sign * v_block
-        t[_P, self.columns] = sign * p_block
-        return t
+        return self.apply(np.eye(dim), velocity, position, -1.0)
 
     def rows(
         self, h: NDArray[np.float64], velocity: NDArray[np.float64], position: NDArray[np.float64]
@@ -145,9 +132,17 @@ class InvariantCoordinates:
         sign: float = 1.0,
     ) -> NDArray[np.float64]:
         """``T P Tᵀ`` (``sign`` 1) or ``T⁻¹ P T⁻ᵀ`` (−1)."""
-        blocks = self._blocks(velocity, position)
-        once = self._apply(p, *blocks, sign)
-        return self._apply(once.T, *blocks, sign).T
+        return self._congruent(p, *self._blocks(velocity, position), sign)
+
+    def _congruent(
+        self,
+        p: NDArray[np.float64],
+        v_block: NDArray[np.float64],
+        p_block: NDArray[np.float64],
+        sign: float,
+    ) -> NDArray[np.float64]:
+        once = self._apply(p, v_block, p_block, sign)
+        return self._apply(once.T, v_block, p_block, sign).T
 
     def to_standard(
         self,
@@ -158,8 +153,7 @@ class InvariantCoordinates:
     ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         """``(T x, T P Tᵀ)``."""
         blocks = self._blocks(velocity, position)
-        once = self._apply(p, *blocks, 1.0)
-        return self._apply(x, *blocks, 1.0), self._apply(once.T, *blocks, 1.0).T
+        return self._apply(x, *blocks, 1.0), self._congruent(p, *blocks, 1.0)
 
     def transition(
         self,
@@ -186,8 +180,8 @@ class InvariantCoordinates:
         gravity = np.array([0.0, 0.0, -float(earth.normal_gravity(lat, h))])
         acceleration = f_n + gravity - np.cross(2.0 * w_ie + w_en, v)
         f_t = self.rows(f, v, position)  # F T
-        f_t[_V, self.columns] -= _skew(acceleration)[:, self._axes]  # − Ṫ
-        f_t[_P, self.columns] -= _skew(v)[:, self._axes]
+        f_t[_V, self.columns] -= skew(acceleration)[:, self._axes]  # − Ṫ
+        f_t[_P, self.columns] -= skew(v)[:, self._axes]
         f_xi = self.apply(f_t, v, position, -1.0)
         q_xi = self.congruent(q, v, position, -1.0)
         return discretize(f_xi, q_xi, dt, model.discretization)
