@@ -339,6 +339,15 @@ class FilterOptions(_Strict):
         " the outputs stay in the standard error. Exclusive with observability_constrained,"
         " which projects the same direction out",
     )
+    reported_covariance: Literal["filter", "invariant_analysis"] = Field(
+        "filter",
+        description="the covariance the outputs, the state history and the observability report"
+        " give: the filter's own, or the actual error covariance of its estimate, the filter's"
+        " gains analysed in the right-invariant error of the heading, in which a source that"
+        " cannot see a turn does not inform the heading (fusion.covariance_analysis). The"
+        " estimate is the same. For a centralized filter without a smoother where nothing sees"
+        " the heading (sins_mc, sins_mc_zupt)",
+    )
     discretization: Literal["series", "van_loan"] = "series"
     error_model: Literal["full", "low_speed"] = "full"
     coning_sculling: bool = True
@@ -722,6 +731,29 @@ class FusionConfig(_Strict):
             )
         if self.filter.architecture == "federated" and not any(p.enabled for p in self.plugins):
             raise ValueError("filter.architecture federated needs at least one enabled plugin")
+        return self
+
+    @model_validator(mode="after")
+    def _analysable(self) -> FusionConfig:
+        options = self.filter
+        if options.reported_covariance != "invariant_analysis":
+            return self
+        if options.architecture != "centralized":
+            raise ValueError(
+                "filter.reported_covariance invariant_analysis follows the gains of one"
+                " centralized filter: set filter.architecture centralized"
+            )
+        if options.invariant_error != "none" or options.observability_constrained:
+            raise ValueError(
+                "filter.reported_covariance invariant_analysis analyses the standard error's"
+                " gains in the invariant error: set filter.invariant_error none and"
+                " filter.observability_constrained false"
+            )
+        if self.smoother.mode != "off":
+            raise ValueError(
+                "filter.reported_covariance invariant_analysis has no smoothed counterpart: set"
+                " smoother.mode off"
+            )
         return self
 
     def to_yaml(self) -> str:

@@ -34,6 +34,7 @@ from numpy.typing import NDArray
 
 from fusion import attitude
 from fusion.config import ConfigError, FusionConfig, ImuTuning
+from fusion.covariance_analysis import CovarianceAnalysis
 from fusion.dead_reckoning import dead_reckon
 from fusion.earth import LocalFrame
 from fusion.encoder import combine_readings
@@ -300,12 +301,28 @@ class Engine:
         self.layout = StateLayout(blocks).extended(b for own in self.plugin_blocks for b in own)
         axes = config.filter.invariant_error
         self._coordinates = None if axes == "none" else InvariantCoordinates(AXES[axes])
+        self._analysis: CovarianceAnalysis | None = None  # set per run
+        if config.filter.reported_covariance == "invariant_analysis":
+            self._check_analysable()
         self.model = ErrorModel(
             self.layout,
             imu,
             form=config.filter.error_model,
             discretization=config.filter.discretization,
         )
+
+    def _check_analysable(self) -> None:
+        """:class:`fusion.covariance_analysis.CovarianceAnalysis` follows updates and time
+        updates; a stored error (CPOEM) or a jump taken in changes the state otherwise."""
+        for plugin, blocks, stored in zip(
+            self.plugins, self.plugin_blocks, np.diff(self.stored_error_offsets), strict=True
+        ):
+            if stored or any(b.may_jump for b in blocks):
+                raise ConfigError(
+                    f"plugin {plugin.name!r}: filter.reported_covariance invariant_analysis"
+                    " cannot follow its stored errors or state jumps; use"
+                    " filter.reported_covariance filter with it"
+                )
 
     def filter_bank(self) -> FilterBank:
         """The configured architecture over this engine's layout."""
@@ -351,6 +368,11 @@ class Engine:
         bank = self.filter_bank()
         if self._coordinates is not None:
             bank.change_coordinates(self._inverse_transform(sins))
+        self._analysis = (
+            CovarianceAnalysis(bank.estimate()[1], *self._point(sins.nav))
+            if cfg.reported_covariance == "invariant_analysis"
+            else None
+        )
         observed = ObservabilityTracker(self.layout)
         self._locks = [
             LockMonitor(cfg.lock_window_s, cfg.lock_min_updates) if gate is not None else None
@@ -412,10 +434,14 @@ class Engine:
                 phi, qd = self._transition(sins, f_n, dt)
                 if cfg.observability_constrained:
                     phi = self._constrained(phi, sins)
+                gap_noise = None
                 while next_gap is not None and te > next_gap.t_start:
-                    gap_noise = self._gap_noise(next_gap, sins, f_n)
-                    qd = qd + self._in_filter_coordinates(gap_noise, sins)
+                    noise = self._gap_noise(next_gap, sins, f_n)
+                    qd = qd + self._in_filter_coordinates(noise, sins)
+                    gap_noise = noise if gap_noise is None else gap_noise + noise
                     next_gap = next(gaps, None)
+                if self._analysis is not None:
+                    self._analysis_predict(sins, f_n, dt, gap_noise)
                 bank.predict(phi, qd)
                 observed.predict(phi, qd)
                 t_cov = te
@@ -428,6 +454,8 @@ class Engine:
                 else None
             )
             if released is not None:  # an identity time update: the smoother's prior has it
+                if self._analysis is not None:
+                    self._analysis.add(released, *self._point(sins.nav))
                 released = self._in_filter_coordinates(released, sins)
                 identity = np.eye(self.layout.dim)
                 bank.predict(identity, released)
@@ -471,6 +499,9 @@ class Engine:
             smoothed = self._solution(*smoother.take_rows())
         filter_estimate = bank.estimate()
         final, final_covariance = self._estimate(filter_estimate, sins)
+        tracked = filter_estimate[1]
+        if self._analysis is not None:
+            final_covariance = tracked = self._analysis.standard(*self._point(sins.nav))
         return RunResult(
             solution=solution,
             layout=self.layout,
@@ -485,7 +516,7 @@ class Engine:
             smoother_peak_steps=smoother.peak_steps if smoother is not None else 0,
             smoother_rejected=smoother.rejected if smoother is not None else 0,
             screening=self.screening,
-            observability=observed.report(filter_estimate[1]),
+            observability=observed.report(tracked),
             states=recorder.history(solution, self.frame) if recorder is not None else None,
         )
 
@@ -501,12 +532,15 @@ class Engine:
             return
         filter_estimate = bank.estimate()
         estimate, covariance = self._estimate(filter_estimate, sins)
+        tracked = filter_estimate[1]  # in the coordinates of the tracker's prior, the filter's
+        if self._analysis is not None:  # the standard error, the filter's own here
+            covariance = tracked = self._analysis.standard(*self._point(sins.nav))
         position = self.layout.slice(POSITION)
         rows.position_covariance.append(covariance[position, position])
         if rows.recorder is not None:
             rows.recorder.record(estimate, covariance)
-        if sampled:  # in the coordinates of the tracker's prior, the filter's own
-            rows.observed.sample(t, filter_estimate[1])
+        if sampled:
+            rows.observed.sample(t, tracked)
 
     def _estimate(
         self, filter_estimate: tuple[NDArray[np.float64], NDArray[np.float64]], sins: Strapdown
@@ -568,6 +602,23 @@ class Engine:
         position = self._point(sins.nav)[1]
         return self._coordinates.transition(self.model, sins.nav, f_n, sins.c_b_n, position, dt)
 
+    def _analysis_predict(
+        self,
+        sins: Strapdown,
+        f_n: NDArray[np.float64],
+        dt: float,
+        noise: NDArray[np.float64] | None,
+    ) -> None:
+        """The covariance analysis's time update over ``dt`` at the filter's specific force,
+        with ``noise`` (over the standard error, an IMU gap's) added."""
+        assert self._analysis is not None
+        velocity, position = self._point(sins.nav)
+        coordinates = self._analysis.coordinates
+        phi, qd = coordinates.transition(self.model, sins.nav, f_n, sins.c_b_n, position, dt)
+        if noise is not None:
+            qd = qd + coordinates.congruent(noise, velocity, position, -1.0)
+        self._analysis.predict(phi, qd)
+
     def _standard_at(
         self, nav: NDArray[np.float64], x: NDArray[np.float64], p: NDArray[np.float64]
     ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
@@ -578,6 +629,9 @@ class Engine:
 
     def _position_covariance(self, bank: FilterBank, sins: Strapdown) -> NDArray[np.float64]:
         """The position error's covariance in local metres."""
+        if self._analysis is not None:
+            position = self.layout.slice(POSITION)
+            return self._analysis.standard(*self._point(sins.nav))[position, position]
         if self._coordinates is None:
             return bank.position_covariance()
         common = self._coordinates.congruent(bank.common_covariance(), *self._point(sins.nav))
@@ -756,6 +810,11 @@ class Engine:
         except np.linalg.LinAlgError:  # S not positive definite: the update is not usable
             logs[plugin.name].record(t, math.inf, len(m.z), False, m.suspect)
             return False
+        if res.gain is not None and self._analysis is not None:
+            velocity = ctx.velocity if m.velocity_at is None else m.velocity_at
+            self._analysis.update(res.gain, m.H, m.R, velocity, ctx.velocity, ctx.position_enu)
+        if res.accepted:
+            kf.hold_bounds(layout.bounds)
         holds = res.accepted and self._needs_holds and _holds(m.H, layout)
         bank.record(src, t, res, m.suspect, holds)
         if holds:
@@ -912,6 +971,8 @@ class Engine:
             bank.change_coordinates(self._transform(sins))
         sins.correct(velocity_error, np.zeros(3), error, np.zeros(3), np.zeros(3))
         bank.restart_common(states, covariance)
+        if self._analysis is not None:
+            self._analysis.restart_block(states, covariance, *self._point(sins.nav))
         if self._coordinates is not None:
             bank.change_coordinates(self._inverse_transform(sins))
         reason = f"{plugin.name} alone moved the position by {np.linalg.norm(error):.3g} m"

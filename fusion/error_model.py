@@ -121,7 +121,9 @@ class StateBlock:
         more than the machine travels, so its slip ratio only rises from 0); 0: either.
     bound
         The largest magnitude the state can physically reach: a jump that would take it beyond
-        is not taken in (:mod:`fusion.jumps`). ``None``: unbounded.
+        is not taken in (:mod:`fusion.jumps`), and an update that takes the estimate beyond is
+        projected back onto it (:meth:`fusion.kalman.KalmanFilter.hold_bounds`). ``None``:
+        unbounded.
     unit
         The unit users read the state in, a key of :data:`STATE_UNITS` (``"deg_h"`` for a gyro
         bias held in rad/s); ``""``: its own unit, unnamed.
@@ -187,6 +189,16 @@ class StateLayout:
     def extended(self, blocks: Iterable[StateBlock]) -> StateLayout:
         """A new layout with ``blocks`` appended."""
         return StateLayout((*self.blocks, *blocks))
+
+    @property
+    def bounds(self) -> tuple[tuple[int, float], ...]:
+        """``(index, bound)`` of every state with a physical bound (:attr:`StateBlock.bound`)."""
+        return tuple(
+            (self._slices[b.name].start + k, b.bound)
+            for b in self.blocks
+            if b.bound is not None
+            for k in range(b.size)
+        )
 
     @property
     def labels(self) -> list[str]:

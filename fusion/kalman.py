@@ -43,6 +43,7 @@ innovation and S), with ``Cov(w', e) = B D_c· − Gᵀ C`` in the update of C.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from functools import lru_cache
 
@@ -94,6 +95,8 @@ class UpdateResult:
         Gate threshold used, or ``None`` when gating is off.
     whitening
         The lower Cholesky factor L of the S that whitened the innovation.
+    gain
+        The gain K the update used (None when rejected).
     """
 
     accepted: bool
@@ -102,6 +105,7 @@ class UpdateResult:
     nis: float
     threshold: float | None
     whitening: NDArray[np.float64]
+    gain: NDArray[np.float64] | None = None
 
     @property
     def dof(self) -> int:
@@ -218,7 +222,7 @@ class KalmanFilter:
             self.P -= term + term.T
         if noise_with_stored is not None:
             self.cross -= gain @ noise_with_stored
-        return UpdateResult(True, nu, whitened, nis, threshold, whitening)
+        return UpdateResult(True, nu, whitened, nis, threshold, whitening, gain)
 
     def _correlated_terms(
         self,
@@ -332,6 +336,20 @@ class KalmanFilter:
         diagonal = np.zeros(self.dim)
         diagonal[indices] = added
         self.P = self.P + np.diag(diagonal)
+
+    def hold_bounds(self, bounds: tuple[tuple[int, float], ...]) -> None:
+        """Project the estimate back inside physical bounds ``(index, bound)``, ``|x_i| ≤ b``:
+        a state beyond moves to the bound and the others with it along their covariance,
+        ``x ← x − P eᵢ (x_i − b_i) / P_ii`` (the estimate projection of Simon, *Kalman filtering
+        with state constraints: a survey of linear and nonlinear algorithms*, IET Control
+        Theory & Applications 4(8), 2010, §2.3, with weight P⁻¹). ``P`` is kept: the bound says
+        where the state cannot be, not where it is, and a covariance shrunk at every epoch
+        the estimate pushes against it would claim the bound as new information each time."""
+        for index, bound in bounds:
+            value = float(self.x[index])
+            if abs(value) > bound and self.P[index, index] > 0.0:
+                excess = value - math.copysign(bound, value)
+                self.x = self.x - self.P[:, index] * (excess / self.P[index, index])
 
     def condition(self, index: int, value: float) -> None:
         """Condition on state ``index`` being exactly ``value``: an update with H = e_indexᵀ and

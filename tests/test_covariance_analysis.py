@@ -1,0 +1,138 @@
+"""The reported covariance of a filter nothing tells the heading: the actual error covariance of
+its estimate, analysed in the invariant error (fusion.covariance_analysis), and the bounds a
+state's estimate is held inside (KalmanFilter.hold_bounds)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from fusion.config import ConfigError, load_config_data, parse_config
+from fusion.covariance_analysis import CovarianceAnalysis
+from fusion.engine import Engine, RunResult
+from fusion.kalman import KalmanFilter
+from fusion.metrics import interpolate_truth
+from fusion.recording import Recording, read_recording
+from fusion.sim.simulate import simulate
+
+
+def test_an_update_analysed_with_the_filters_own_rows_is_its_joseph_form() -> None:
+    """With the rows the filter used (their heading column at the velocity ``T`` is taken at),
+    ``T⁻¹ K`` and ``H T`` over ``ξ`` are the filter's own update: the analysed covariance,
+    back in the standard error, is the filter's ``P⁺`` (the change of coordinates is exact)."""
+    rng = np.random.default_rng(5)
+    n = 15
+    root = rng.standard_normal((n, n))
+    p = root @ root.T + np.eye(n)
+    velocity, position = np.array([0.3, -0.1, 0.02]), np.array([40.0, -25.0, 3.0])
+    analysis = CovarianceAnalysis(p, velocity, position)
+    kf = KalmanFilter(np.zeros(n), p)
+    h = rng.standard_normal((2, n))
+    r = np.diag([0.01, 0.04])
+    result = kf.update(rng.standard_normal(2), h, r)
+    assert result.gain is not None
+    analysis.update(result.gain, h, r, velocity, velocity, position)
+    np.testing.assert_allclose(analysis.standard(velocity, position), kf.P, rtol=1e-9, atol=1e-9)
+
+
+def test_a_restart_is_of_the_standard_states() -> None:
+    """A re-acquisition restarts standard states: those rows and columns of the analysed
+    covariance are the fix's, uncorrelated with the rest."""
+    n = 15
+    velocity, position = np.array([0.5, 0.0, 0.0]), np.array([10.0, 20.0, 0.0])
+    analysis = CovarianceAnalysis(np.eye(n) + 0.1, velocity, position)
+    states = np.r_[6:9]
+    fix = np.diag([0.04, 0.09, 0.01])
+    analysis.restart_block(states, fix, velocity, position)
+    standard = analysis.standard(velocity, position)
+    np.testing.assert_allclose(standard[np.ix_(states, states)], fix, atol=1e-12)
+    others = np.setdiff1d(np.arange(n), states)
+    np.testing.assert_allclose(standard[np.ix_(states, others)], 0.0, atol=1e-12)
+
+
+def test_an_estimate_past_its_bound_is_projected_back_with_its_correlated_states() -> None:
+    """``|x_i| ≤ b``: the state moves to the bound, a correlated one by ``P_ji / P_ii`` of the
+    excess, and the covariance stays; an estimate inside its bound is left alone."""
+    p = np.array([[4.0, 1.0, 0.0], [1.0, 1.0, 0.0], [0.0, 0.0, 1.0]])
+    kf = KalmanFilter(np.array([0.5, -2.0, 9.0]), p)
+    kf.hold_bounds(((1, 0.6), (2, 10.0)))
+    np.testing.assert_allclose(kf.x, [0.5 + 1.0 * 1.4, -0.6, 9.0])
+    np.testing.assert_array_equal(kf.P, p)
+
+
+@pytest.mark.parametrize(
+    ("change", "key"),
+    [
+        ({"filter": {"architecture": "federated"}}, "architecture centralized"),
+        ({"smoother": {"mode": "whole"}}, "smoother.mode off"),
+        ({"filter": {"observability_constrained": True}}, "observability_constrained false"),
+    ],
+)
+def test_the_analysis_refuses_what_it_cannot_follow(
+    change: dict[str, dict[str, object]], key: str
+) -> None:
+    data = load_config_data("configs/sins_mc.yaml")
+    for section, options in change.items():
+        data.setdefault(section, {}).update(options)
+    with pytest.raises(ConfigError, match=key):
+        parse_config(data)
+
+
+def test_the_analysis_refuses_a_plugin_with_stored_errors(tmp_path: Path) -> None:
+    """CPOEM stores errors the analysis cannot follow: a clear error naming the plugin."""
+    simulate("longwall-random", tmp_path, seed=0, overrides=["duration_s=60"])
+    data = load_config_data("configs/sins_od_cpoem.yaml")
+    data["filter"].update(reported_covariance="invariant_analysis", observability_constrained=False)
+    with pytest.raises(ConfigError, match="plugin 'cpoem'"):
+        Engine(parse_config(data), read_recording(tmp_path))
+
+
+def _yaw_and_position_errors(
+    result: RunResult, recording: Recording
+) -> tuple[np.ndarray, np.ndarray]:
+    """Per output epoch: yaw error / its σ, and the horizontal errors / their σ."""
+    solution = result.solution
+    assert result.states is not None
+    inside, position, _, attitude, _ = interpolate_truth(recording.truth, solution.t)
+    yaw = np.degrees(np.angle(np.exp(1j * (solution.attitude[inside, 2] - attitude[:, 2]))))
+    yaw_z = yaw / result.states.columns()["sigma_yaw_deg"][inside]
+    horizontal = solution.position[inside, :2] - position[:, :2]
+    return yaw_z, horizontal / solution.sigma_position[inside, :2]
+
+
+@pytest.mark.slow
+def test_the_motion_constraint_alone_reports_a_yaw_sigma_it_keeps(tmp_path: Path) -> None:
+    """``sins_mc`` on seed002-rectangle, seeds 0–3 (the replica of the paper's MC run): the
+    filter's own yaw σ is too small (pooled RMS(ε/σ) above 1.5: its constraint takes its own
+    velocity's direction for the heading), the analysed one is kept (0.6–1.5); the position is
+    the same either way, its σ within its promise too, and the speed along the track stays
+    within the machine's top speed."""
+    reported: dict[str, list[np.ndarray]] = {"filter": [], "invariant_analysis": []}
+    horizontal = []
+    for seed in range(4):
+        directory = tmp_path / f"s{seed}"
+        simulate("seed002-rectangle", directory, seed=seed)
+        recording = read_recording(directory)
+        positions = []
+        for covariance in reported:
+            data = load_config_data("configs/sins_mc.yaml")
+            data["filter"]["reported_covariance"] = covariance
+            result = Engine(parse_config(data), recording).run()
+            yaw_z, position_z = _yaw_and_position_errors(result, recording)
+            reported[covariance].append(yaw_z)
+            positions.append(result.solution.position)
+            if covariance == "invariant_analysis":
+                horizontal.append(position_z)
+                assert result.states is not None
+                assert np.abs(result.states.columns()["zupt_speed_m_s"]).max() <= 0.6 + 1e-9
+        np.testing.assert_array_equal(positions[0], positions[1])
+
+    def rms(chunks: list[np.ndarray]) -> float:
+        return float(np.sqrt(np.mean(np.concatenate(chunks) ** 2)))
+
+    assert rms(reported["filter"]) > 1.5
+    assert 0.6 <= rms(reported["invariant_analysis"]) <= 1.5
+    position_rms = np.sqrt(np.mean(np.concatenate(horizontal) ** 2, axis=0))
+    assert np.all((position_rms >= 0.5) & (position_rms <= 1.5)), position_rms
