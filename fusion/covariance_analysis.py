@@ -26,9 +26,10 @@ force into it. The filter's gain is over the standard error; over ``ξ`` it is `
 rows ``H T`` at the velocity the plugin linearized at. ``P_a`` is kept across a feedback, as the
 invariant EKF keeps its covariance (the estimate it describes is the corrected one either way).
 
-The estimate is the filter's: this changes no position, only the σ it is reported with. Where
-the filter's model is right (a source sees the heading), ``P_a`` is the filter's ``P`` to first
-order.
+The estimate is the filter's: this changes no position, only the σ it is reported with. An
+update analysed with the filter's own rows is the filter's own Joseph form; what differs is the
+heading column the true model denies a source that cannot see a turn, the specific force the
+transition leaves out of the heading, and the covariance kept across a feedback.
 """
 
 from __future__ import annotations
@@ -64,8 +65,9 @@ class CovarianceAnalysis:
         velocity: NDArray[np.float64],
         position: NDArray[np.float64],
     ) -> None:
-        """Add a covariance ``noise`` over the standard error (process noise added at an
-        instant, an inflation)."""
+        """Add a covariance ``noise`` over the standard error (process noise a plugin releases
+        at an instant). An inflation of the filter's covariance changes its gains, not its
+        error, and is not added."""
         self.P = self.P + self.coordinates.congruent(noise, velocity, position, -1.0)
 
     def update(

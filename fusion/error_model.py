@@ -158,6 +158,7 @@ class StateLayout:
 
     blocks: tuple[StateBlock, ...]
     _slices: dict[str, slice] = field(init=False, repr=False, compare=False)
+    _bounds: tuple[tuple[int, float], ...] = field(init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
         slices: dict[str, slice] = {}
@@ -168,6 +169,13 @@ class StateLayout:
             slices[block.name] = slice(start, start + block.size)
             start += block.size
         object.__setattr__(self, "_slices", slices)
+        bounds = tuple(
+            (slices[b.name].start + k, b.bound)
+            for b in self.blocks
+            if b.bound is not None
+            for k in range(b.size)
+        )
+        object.__setattr__(self, "_bounds", bounds)
 
     @property
     def dim(self) -> int:
@@ -193,12 +201,7 @@ class StateLayout:
     @property
     def bounds(self) -> tuple[tuple[int, float], ...]:
         """``(index, bound)`` of every state with a physical bound (:attr:`StateBlock.bound`)."""
-        return tuple(
-            (self._slices[b.name].start + k, b.bound)
-            for b in self.blocks
-            if b.bound is not None
-            for k in range(b.size)
-        )
+        return self._bounds
 
     @property
     def labels(self) -> list[str]:
