@@ -226,6 +226,14 @@ HOLD_CONDITION = 1e-9
 all three axes (:func:`_holds`); round-off leaves ≈ 10⁻¹⁶ in a rank-deficient block."""
 
 
+def _rows_velocity(
+    velocity_at: NDArray[np.float64] | None, ctx: MeasurementContext
+) -> NDArray[np.float64]:
+    """The velocity a measurement's attitude columns were evaluated at
+    (:attr:`fusion.plugin.Measurement.velocity_at`; the nominal one unless it says)."""
+    return ctx.velocity if velocity_at is None else velocity_at
+
+
 def _holds(h: NDArray[np.float64], layout: StateLayout) -> bool:
     """Whether measurement rows ``h`` determine the velocity or the position in all three
     axes (an odometer with its constraint rows, a zero velocity, a position fix): the
@@ -497,11 +505,7 @@ class Engine:
         if smoother is not None:
             smoother.close_window()
             smoothed = self._solution(*smoother.take_rows())
-        filter_estimate = bank.estimate()
-        final, final_covariance = self._estimate(filter_estimate, sins)
-        tracked = filter_estimate[1]
-        if self._analysis is not None:
-            final_covariance = tracked = self._analysis.standard(*self._point(sins.nav))
+        final, final_covariance, tracked = self._reported(bank, sins)
         return RunResult(
             solution=solution,
             layout=self.layout,
@@ -530,17 +534,27 @@ class Engine:
         if rows.recorder is None and not sampled:
             rows.position_covariance.append(self._position_covariance(bank, sins))
             return
-        filter_estimate = bank.estimate()
-        estimate, covariance = self._estimate(filter_estimate, sins)
-        tracked = filter_estimate[1]  # in the coordinates of the tracker's prior, the filter's
-        if self._analysis is not None:  # the standard error, the filter's own here
-            covariance = tracked = self._analysis.standard(*self._point(sins.nav))
+        estimate, covariance, tracked = self._reported(bank, sins)
         position = self.layout.slice(POSITION)
         rows.position_covariance.append(covariance[position, position])
         if rows.recorder is not None:
             rows.recorder.record(estimate, covariance)
         if sampled:
             rows.observed.sample(t, tracked)
+
+    def _reported(
+        self, bank: FilterBank, sins: Strapdown
+    ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+        """From one estimate of the bank: every state's estimate and the covariance the
+        outputs report (:meth:`_estimate`, or the covariance analysis's), and the covariance
+        the observability tracker samples, in the coordinates of its prior (the filter's; with
+        the analysis, the standard error, the filter's own there)."""
+        filter_estimate = bank.estimate()
+        estimate, covariance = self._estimate(filter_estimate, sins)
+        if self._analysis is None:
+            return estimate, covariance, filter_estimate[1]
+        analysed = self._analysis.standard(*self._point(sins.nav))
+        return estimate, analysed, analysed
 
     def _estimate(
         self, filter_estimate: tuple[NDArray[np.float64], NDArray[np.float64]], sins: Strapdown
@@ -811,7 +825,7 @@ class Engine:
             logs[plugin.name].record(t, math.inf, len(m.z), False, m.suspect)
             return False
         if res.gain is not None and self._analysis is not None:
-            velocity = ctx.velocity if m.velocity_at is None else m.velocity_at
+            velocity = _rows_velocity(m.velocity_at, ctx)
             self._analysis.update(res.gain, m.H, m.R, velocity, ctx.velocity, ctx.position_enu)
         if res.accepted:
             kf.hold_bounds(layout.bounds)
@@ -878,7 +892,7 @@ class Engine:
         coordinates = self._coordinates
         if coordinates is None:
             return h
-        velocity = ctx.velocity if velocity_at is None else velocity_at
+        velocity = _rows_velocity(velocity_at, ctx)
         return coordinates.rows(h, velocity, ctx.position_enu)
 
     def _process_noise(
