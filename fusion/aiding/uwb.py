@@ -145,7 +145,11 @@ UWB-only least squares (:func:`least_squares_solution`)
     against the prediction's ranges (variance σ² plus the prediction's), as long as
     ``min_anchors`` anchors pass — a non-line-of-sight (NLOS) range pulls a fit of four
     anchors towards it and hides among their residuals — then by the fit's own residuals,
-    the largest dropped and the window solved again while it exceeds the gate. Every range
+    the largest dropped and the window solved again while it exceeds the gate. NLOS on every
+    anchor at once reads every range long, and four anchors clustered at a face end fit that
+    with small residuals metres away; such a fix is also farther from the prediction than
+    the tag can have moved (the fix's covariance plus the prediction's, at the χ²(3)
+    quantile of ``gate_probability``) and gives no fix (:func:`_reachable`). Every range
     is logged with its squared standardized residual and the verdict. The ranging σ is
     learned from the accepted residuals (:class:`_ResidualNoise`, forgetting time
     ``noise_window_s``, never below ``sigma_range_m``), and the covariance is
@@ -661,7 +665,8 @@ def _predicted_tag(
 ) -> tuple[NDArray[np.float64], float]:
     """Where the tag is expected at ``t`` and the variance (m², summed over the axes) of that
     guess: the weighted line through the fixes of the last ``velocity_span_s`` (weights
-    1/tr(cov): an ambiguous fix barely counts), extrapolated by at most that span; their
+    1/tr(cov): an ambiguous fix barely counts; its speed at most ``max_speed_mps``),
+    extrapolated by at most that span; their
     weighted mean when there are fewer than three. The variance is the weighted mean's plus
     ``max_speed_mps`` times the time of the windows without a fix, squared. ``times`` is
     not empty."""
@@ -678,6 +683,9 @@ def _predicted_tag(
     t_mean = float(w @ tt / w.sum())
     tc = tt - t_mean
     slope = (w * tc) @ (pp - centre) / float((w * tc) @ tc)
+    speed = float(np.linalg.norm(slope))
+    if speed > options.max_speed_mps:  # fixes scattered by ranges the gate let through
+        slope *= options.max_speed_mps / speed
     return centre + slope * (min(t - times[-1], span) - t_mean), variance
 
 
@@ -908,6 +916,20 @@ def _profile_minimum(
     return p, _chi2(p, anchors, ranges, None, options.sigma_range_m)
 
 
+def _reachable(fit: _Fit, prediction: NDArray[np.float64], spread: float, gate: float) -> bool:
+    """Whether a window's fix is a place the tag can have reached: its offset from the
+    prediction within the χ²₃ ``gate`` of the fix's covariance plus the prediction's
+    (``spread``, m² over the three axes, taken as isotropic; infinite while the branch is
+    unknown, when everything is reachable). The prediction's variance grows with
+    ``max_speed_mps`` times the time without a fix, so a tag that really moved is fixed
+    again once that time allows the move."""
+    if not math.isfinite(spread):
+        return True
+    offset = fit.position - prediction
+    innovation = fit.covariance + (spread / 3.0) * np.eye(3)
+    return float(offset @ np.linalg.solve(innovation, offset)) <= gate
+
+
 def _beyond_fit(offset: NDArray[np.float64], covariance: NDArray[np.float64]) -> bool:
     """Two solutions ``offset`` apart are different places as far as a fit of ``covariance``
     goes: more than 3σ of it apart, σ taken along the offset."""
@@ -976,6 +998,7 @@ def least_squares_solution(
     height = None if opts.height_sigma_m is None else (float(tag[2]), opts.height_sigma_m)
     anchors = np.array([meta.anchors[a] for a in data.anchor_ids], dtype=float)
     gate = None if gate_probability is None else chi2_threshold(1, gate_probability)
+    fix_gate = None if gate_probability is None else chi2_threshold(3, gate_probability)
     noise = _ResidualNoise(opts.sigma_range_m, opts.noise_window_s)
 
     keep = np.ones(data.t.size, dtype=bool)
@@ -1012,6 +1035,11 @@ def least_squares_solution(
             if log is not None:
                 for t_k in t[sel]:
                     log.record(float(t_k), math.nan, 1, False, False)
+            continue
+        if fix_gate is not None and not _reachable(fit, prediction, spread, fix_gate):
+            if log is not None:  # a place the tag cannot have reached: no fix
+                for t_k, nis in zip(t[sel], fit.squared, strict=True):
+                    log.record(float(t_k), float(nis), 1, False, False)
             continue
         tag, cov = fit.position, branch.resolve(fit, prediction, spread)
         used, squared = fit.used, fit.squared
