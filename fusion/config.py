@@ -320,24 +320,14 @@ class FilterOptions(_Strict):
         "observable_force): for a slow machine; off for a car, a foot or a hand, whose"
         " accelerations are real (with it a foot's ZUPT-aided track was 4× worse)",
     )
-    observability_constrained: bool = Field(
-        False,
-        description="keep a turn of the whole trajectory about the vertical unobservable to the"
-        " sources that cannot see one (ZUPT, ZARU, odometer, motion constraint): the heading"
-        " column of Φ and of their H is constrained (fusion.yaw_nullspace); for MEMS IMUs, which"
-        " cannot find north from the Earth's rate. On in the odometer-only configurations"
-        " (sins_od_ckf, sins_od_cpoem*), whose encoder gives the turn direction its velocity;"
-        " off where the constraint alone gives the velocity, which it then takes for the turn"
-        " direction (docs/design/2026-11-27-observability.md, 2026-11-27-full-length-worlds.md)",
-    )
     invariant_error: Literal["none", "heading", "full"] = Field(
         "none",
         description="keep the covariance in the right-invariant error (fusion.invariant_error)"
         " of the heading alone or of the whole attitude: a turn of the whole trajectory is then"
         " one fixed direction, the specific force drops out of its dynamics, and a source that"
         " cannot see the heading finds no heading column; the plugins' rows, the feedback and"
-        " the outputs stay in the standard error. Exclusive with observability_constrained,"
-        " which projects the same direction out",
+        " the outputs stay in the standard error. heading in the odometer-only configurations"
+        " (sins_od_ckf, sins_od_cpoem*): nothing there sees the heading",
     )
     reported_covariance: Literal["filter", "invariant_analysis"] = Field(
         "filter",
@@ -359,15 +349,16 @@ class FilterOptions(_Strict):
         " 50 m): beyond, the prior is meaningless and its variance swamps double precision",
     )
 
-    @model_validator(mode="after")
-    def _one_heading_treatment(self) -> FilterOptions:
-        if self.invariant_error != "none" and self.observability_constrained:
+    @model_validator(mode="before")
+    @classmethod
+    def _replaced_keys(cls, data: Any) -> Any:
+        if isinstance(data, dict) and "observability_constrained" in data:
             raise ValueError(
-                "invariant_error and observability_constrained both keep a turn of the"
-                " trajectory unobserved, the one by its coordinates, the other by projecting it"
-                " out of Φ and H: choose one"
+                "filter.observability_constrained was replaced by filter.invariant_error:"
+                " heading, which keeps the same turn of the trajectory unobserved in the"
+                " error's coordinates instead of projecting it out of Φ and H"
             )
-        return self
+        return data
 
 
 class PluginBlock(BaseModel):
@@ -743,11 +734,10 @@ class FusionConfig(_Strict):
                 "filter.reported_covariance invariant_analysis follows the gains of one"
                 " centralized filter: set filter.architecture centralized"
             )
-        if options.invariant_error != "none" or options.observability_constrained:
+        if options.invariant_error != "none":
             raise ValueError(
                 "filter.reported_covariance invariant_analysis analyses the standard error's"
-                " gains in the invariant error: set filter.invariant_error none and"
-                " filter.observability_constrained false"
+                " gains in the invariant error: set filter.invariant_error none"
             )
         if self.smoother.mode != "off":
             raise ValueError(

@@ -76,7 +76,6 @@ from fusion.smoother import WindowedSmoother
 from fusion.solution import Solution
 from fusion.state_history import StateHistory, StateRecorder
 from fusion.strapdown import HGT, LAT, LON, NAV_SIZE, Q0, VEL, NavState, Strapdown
-from fusion.yaw_nullspace import constrain_rows, constrain_transition, turn_direction
 
 _log = logging.getLogger(__name__)
 ProgressCallback = Callable[[float], None]
@@ -389,7 +388,6 @@ class Engine:
         self._last_held = [-math.inf] * len(self.plugins)
         self._watched = any(lock is not None for lock in self._locks)  # else _alone is unasked
         self._needs_holds = self._watched or cfg.architecture == "federated"  # FederatedFilter
-        self._turn_prior = self._turn(self.layout, sins)
         states = jump_states(self.layout)
         jumps = (
             JumpDetector(self.layout, states, cfg.jump_detection, self._tell_owner)
@@ -440,8 +438,6 @@ class Engine:
                 if cfg.observable_force:
                     f_n = observable_force(f_n, sins.c_b_n, bank.common_covariance())
                 phi, qd = self._transition(sins, f_n, dt)
-                if cfg.observability_constrained:
-                    phi = self._constrained(phi, sins)
                 gap_noise = None
                 while next_gap is not None and te > next_gap.t_start:
                     noise = self._gap_noise(next_gap, sins, f_n)
@@ -580,8 +576,7 @@ class Engine:
 
     def _point(self, nav: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         """ENU velocity and ENU position about the origin of the packed navigation state
-        ``nav``: where ``T`` is evaluated (:mod:`fusion.invariant_error`) and the turn of
-        :mod:`fusion.yaw_nullspace` taken."""
+        ``nav``: where ``T`` is evaluated (:mod:`fusion.invariant_error`)."""
         position = self.frame.point(float(nav[LAT]), float(nav[LON]), float(nav[HGT]))[0]
         return nav[VEL : VEL + 3].copy(), position
 
@@ -651,18 +646,6 @@ class Engine:
         common = self._coordinates.congruent(bank.common_covariance(), *self._point(sins.nav))
         position = self.layout.slice(POSITION)
         return common[position, position]
-
-    def _turn(self, layout: StateLayout, sins: Strapdown) -> NDArray[np.float64]:
-        """The error of a unit turn about the vertical through the frame's origin at the
-        nominal state (:func:`fusion.yaw_nullspace.turn_direction`)."""
-        return turn_direction(layout, *self._point(sins.nav))
-
-    def _constrained(self, phi: NDArray[np.float64], sins: Strapdown) -> NDArray[np.float64]:
-        """Φ that carries the turn at the last propagated state onto the turn at this one
-        (:func:`fusion.yaw_nullspace.constrain_transition`, with the prior estimates as the
-        observability-constrained EKF takes them)."""
-        before, self._turn_prior = self._turn_prior, self._turn(self.layout, sins)
-        return constrain_transition(phi, before, self._turn_prior, self.layout)
 
     def _gap_noise(
         self, gap: GapBridge, sins: Strapdown, f_n: NDArray[np.float64]
@@ -811,8 +794,6 @@ class Engine:
                 f" H or R at t = {t:.3f} s: a fault of the plugin (the reader passes only finite"
                 " readings)"
             )
-        if self.config.filter.observability_constrained and plugin.turn_invariant:
-            m = replace(m, H=constrain_rows(m.H, self._turn(layout, sins), layout))
         rows = self._filter_rows(m.H, m.velocity_at, ctx)
         correlated = m.correlated
         if correlated is not None:

@@ -3,8 +3,8 @@ EKF, the plugins' measurements and the SINS feedback in the error of :mod:`fusio
 
 The error state of :mod:`fusion.error_model` (``δv``, ``φ``, ``δp``, biases) measures the velocity
 and position errors in a fixed frame. Turn the whole estimated trajectory by α about the vertical
-and that error moves along ``N = [δv = v̂ × e_U, φ = e_U, δp = p̂ × e_U]`` (:mod:`fusion.
-yaw_nullspace`), a direction that changes with the nominal velocity; its dynamics carry the
+and that error moves along ``N = [δv = v̂ × e_U, φ = e_U, δp = p̂ × e_U]``, a direction that
+changes with the nominal velocity; its dynamics carry the
 nominal specific force, ``δv̇ = fⁿ × φ``, and whatever fluctuation that force shows (a tilt error
 times gravity, cutting vibration) "observes" the heading at a standstill.
 
@@ -27,13 +27,14 @@ specific force:
 exactly from the columns ``T`` carries). Since ``g`` is vertical, the heading enters no velocity
 derivative, and a source that cannot see a turn (a zero velocity, a body-frame velocity
 evaluated at the same velocity as ``T``) has no heading column: what is unobservable stays so
-without constraining anything (compare the observability-constrained EKF,
-:mod:`fusion.yaw_nullspace`, which projects it out).
+without constraining anything. (The observability-constrained EKF of Huang, Mourikis &
+Roumeliotis, IJRR 2010, projects the same direction out of Φ and H instead; it was this
+project's first treatment, with the same figures: docs/design/2026-11-29-ablation-regressions.md.)
 
 ``T`` may carry the heading alone (:data:`AXES` ``heading``: the turn about the vertical, the one
 symmetry gravity leaves; the tilt keeps the standard error and its ``fⁿ × φ``) or the whole
-attitude (``full``). Measured effects, and why neither is a shipped default yet:
-``docs/design/2026-11-29-invariant-error.md``.
+attitude (``full``). ``heading`` is on in the odometer-only configurations; measured effects,
+and why it is not the default elsewhere: ``docs/design/2026-11-29-invariant-error.md``.
 
 The plugins keep their measurement rows in the error of :mod:`fusion.error_model`; the engine
 multiplies them by ``T`` at the velocity the plugin linearized at

@@ -317,12 +317,6 @@ class Plugin(ABC):
             " filter.architecture standalone needs one that has (e.g. uwb)"
         )
 
-    turn_invariant: ClassVar[bool] = False
-    """Whether the measurement is the same when the whole trajectory turns about the vertical
-    (a zero velocity or angular rate, a body-frame speed, a motion constraint): with
-    ``filter.observability_constrained`` its rows then cannot observe the heading
-    (:mod:`fusion.yaw_nullspace`)."""
-
     closes_windows: ClassVar[bool] = False
     """Whether the plugin tells online smoothing where to close its windows
     (:meth:`window_end_due`, e.g. CPOEM at the face ends)."""

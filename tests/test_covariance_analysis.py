@@ -67,7 +67,7 @@ def test_an_estimate_past_its_bound_is_projected_back_with_its_correlated_states
     [
         ({"filter": {"architecture": "federated"}}, "architecture centralized"),
         ({"smoother": {"mode": "whole"}}, "smoother.mode off"),
-        ({"filter": {"observability_constrained": True}}, "observability_constrained false"),
+        ({"filter": {"invariant_error": "heading"}}, "invariant_error none"),
     ],
 )
 def test_the_analysis_refuses_what_it_cannot_follow(
@@ -84,7 +84,7 @@ def test_the_analysis_refuses_a_plugin_with_stored_errors(tmp_path: Path) -> Non
     """CPOEM stores errors the analysis cannot follow: a clear error naming the plugin."""
     simulate("longwall-random", tmp_path, seed=0, overrides=["duration_s=60"])
     data = load_config_data("configs/sins_od_cpoem.yaml")
-    data["filter"].update(reported_covariance="invariant_analysis", observability_constrained=False)
+    data["filter"].update(reported_covariance="invariant_analysis", invariant_error="none")
     with pytest.raises(ConfigError, match="plugin 'cpoem'"):
         Engine(parse_config(data), read_recording(tmp_path))
 

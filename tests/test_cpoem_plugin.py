@@ -369,15 +369,16 @@ def _matched_config() -> FusionConfig:
     floor undulation and slope), its face ends are exact and its push rams read the advance to
     7 mm. ``filter.observable_force`` is off: the carrier's accelerations here are known to
     many σ, and the heading information they carry is withheld by that option (with it the
-    whitened RMS was 0.64). ``filter.observability_constrained`` is off for the same reason:
-    with biases that do not wander, the Earth's rate and the carrier's turns do tell the
-    heading here, and the constraint withholds it (with it the whitened RMS was 0.54). The
+    whitened RMS was 0.64). ``filter.invariant_error`` is none for the same reason: with
+    biases that do not wander, the Earth's rate and the carrier's turns do tell the heading
+    here, and the shipped invariant error withholds it (with it the whitened RMS was 0.54, as
+    with the observability-constrained EKF it replaced). The
     shipped values are those of a real face: pessimistic here."""
     data = load_config(CONFIGS / "sins_od_cpoem.yaml").model_dump()
     data["imu"].update(gyro_bias_instability_deg_h=0.0, accel_bias_instability_mg=0.0)
     data["streams"]["odometer_max_rate_hz"] = None
     data["filter"]["observable_force"] = False
-    data["filter"]["observability_constrained"] = False
+    data["filter"]["invariant_error"] = "none"
     data["plugins"][0].update(
         sigma_speed_mps=0.003,
         sigma_lateral_mps=0.004,

@@ -243,7 +243,6 @@ class Odometer(Plugin):
 
     Options = OdometerOptions
     options: OdometerOptions
-    turn_invariant = True  # body-frame speed and constraint, zero angular rate at a stop
 
     def __init__(self, name: str, options: OdometerOptions, recording: Recording) -> None:
         super().__init__(name, options, recording)

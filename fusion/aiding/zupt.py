@@ -485,7 +485,6 @@ class Zupt(Plugin):
 
     Options = ZuptOptions
     options: ZuptOptions
-    turn_invariant = True  # zero velocity and angular rate, body-frame constraint
 
     def __init__(self, name: str, options: ZuptOptions, recording: Recording) -> None:
         super().__init__(name, options, recording)
