@@ -755,6 +755,22 @@ def test_least_squares_height_constraint_and_errors(
         least_squares_solution(rec, LeastSquaresOptions(window_s=0.01))
 
 
+def _ranging_meta(anchors: dict[str, tuple[float, float, float]], start: np.ndarray) -> Any:
+    """meta.yaml of a UWB recording at 40 ranges/s with a zero lever arm, starting at ``start``
+    known to 5 cm."""
+    return recording_meta(
+        uwb={"rate_hz": 40.0, "tag_lever_arm_b_m": [0.0, 0.0, 0.0], "anchors": anchors},
+        initial={
+            "position_enu_m": list(start),
+            "sigma": {
+                "position_m": [0.05] * 3,
+                "velocity_mps": [0.01] * 3,
+                "attitude_deg": [1.0] * 3,
+            },
+        },
+    )
+
+
 def _ranged_walk(
     anchors: dict[str, tuple[float, float, float]],
     start: np.ndarray,
@@ -782,17 +798,7 @@ def _ranged_walk(
     if nlos is not None:
         anchor, t0, t1, bias = nlos
         ranges[(index == ids.index(anchor)) & (t >= t0) & (t < t1)] += bias
-    meta = recording_meta(
-        uwb={"rate_hz": 40.0, "tag_lever_arm_b_m": [0.0, 0.0, 0.0], "anchors": anchors},
-        initial={
-            "position_enu_m": list(start),
-            "sigma": {
-                "position_m": [0.05] * 3,
-                "velocity_mps": [0.01] * 3,
-                "attitude_deg": [1.0] * 3,
-            },
-        },
-    )
+    meta = _ranging_meta(anchors, start)
     uwb = UwbData(t=t, anchor_index=index, range=ranges, anchor_ids=ids)
     return Recording(path=None, meta=meta, imu=still_imu(duration), uwb=uwb), truth
 
@@ -900,17 +906,7 @@ def test_least_squares_gives_no_fix_where_the_tag_cannot_be() -> None:
     index = np.arange(t.size) % len(anchors)
     tag = start + (0.05 * np.clip(t - 10.0, 0.0, None))[:, None] * np.array([1.0, 0.0, 0.0])
     nlos = (t >= 20.0) & (t < 40.0)
-    meta = recording_meta(
-        uwb={"rate_hz": 40.0, "tag_lever_arm_b_m": [0.0, 0.0, 0.0], "anchors": anchors},
-        initial={
-            "position_enu_m": list(start),
-            "sigma": {
-                "position_m": [0.05] * 3,
-                "velocity_mps": [0.01] * 3,
-                "attitude_deg": [1.0] * 3,
-            },
-        },
-    )
+    meta = _ranging_meta(anchors, start)
     counts = np.zeros((2, 2))  # [with the test, without] x [inside NLOS, outside]
     for seed in range(10):
         rng = np.random.default_rng(seed)
