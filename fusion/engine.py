@@ -220,6 +220,13 @@ def _event_schedule(
     return t_all[order], np.concatenate(sources)[order], np.concatenate(indices)[order]
 
 
+BOUND = "bound"
+"""``faults.csv`` action: an estimate reached its physical bound and is held there
+(:meth:`fusion.kalman.KalmanFilter.hold_bounds`); one row when it reaches the bound, again only
+after it has come back within :data:`BOUND_RELEASE` of it."""
+BOUND_RELEASE = 0.9
+"""Share of its bound an estimate must come back within before reaching the bound again is a
+new ``faults.csv`` row."""
 HOLD_CONDITION = 1e-9
 """det(HᵀH) over a block, relative to trace(HᵀH)³, above which rows ``H`` fix the block in
 all three axes (:func:`_holds`); round-off leaves ≈ 10⁻¹⁶ in a rank-deficient block."""
@@ -272,6 +279,8 @@ class Engine:
 
     def __init__(self, config: FusionConfig, recording: Recording) -> None:
         self.config = config
+        self._at_bound: dict[str, tuple[KalmanFilter, int]] = {}
+        """States held at their bound in this run, by label: their filter and index."""
         recording = check_recording(recording, bridge_imu_gaps=config.bridge_imu_gaps)
         screened, self.screening = screen_recording(recording, config.screening)
         rate = config.streams.odometer_max_rate_hz
@@ -386,6 +395,7 @@ class Engine:
             for gate in self.gates
         ]
         self._last_held = [-math.inf] * len(self.plugins)
+        self._at_bound = {}
         self._watched = any(lock is not None for lock in self._locks)  # else _alone is unasked
         self._needs_holds = self._watched or cfg.architecture == "federated"  # FederatedFilter
         states = jump_states(self.layout)
@@ -647,6 +657,22 @@ class Engine:
         position = self.layout.slice(POSITION)
         return common[position, position]
 
+    def _hold_bounds(
+        self, kf: KalmanFilter, layout: StateLayout, t: float, bank: FilterBank
+    ) -> None:
+        """Hold ``kf``'s estimates inside their bounds; a ``faults.csv`` row (:data:`BOUND`)
+        when one reaches its bound."""
+        bounds = dict(layout.bounds)
+        for index, value in kf.hold_bounds(layout.bounds):
+            label = layout.labels[index]
+            if label not in self._at_bound:
+                self._at_bound[label] = (kf, index)
+                reason = "estimate held at its physical bound (StateBlock.bound)"
+                bank.faults.append(FaultEvent(t, label, value, bounds[index], BOUND, reason))
+        for label, (held, index) in list(self._at_bound.items()):
+            if held is kf and abs(kf.x[index]) < BOUND_RELEASE * bounds[index]:
+                del self._at_bound[label]
+
     def _gap_noise(
         self, gap: GapBridge, sins: Strapdown, f_n: NDArray[np.float64]
     ) -> NDArray[np.float64]:
@@ -809,7 +835,7 @@ class Engine:
             velocity = _rows_velocity(m.velocity_at, ctx)
             self._analysis.update(res.gain, m.H, m.R, velocity, ctx.velocity, ctx.position_enu)
         if res.accepted:
-            kf.hold_bounds(layout.bounds)
+            self._hold_bounds(kf, layout, t, bank)
         holds = res.accepted and self._needs_holds and _holds(m.H, layout)
         bank.record(src, t, res, m.suspect, holds)
         if holds:

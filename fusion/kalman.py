@@ -337,19 +337,23 @@ class KalmanFilter:
         diagonal[indices] = added
         self.P = self.P + np.diag(diagonal)
 
-    def hold_bounds(self, bounds: tuple[tuple[int, float], ...]) -> None:
+    def hold_bounds(self, bounds: tuple[tuple[int, float], ...]) -> list[tuple[int, float]]:
         """Project the estimate back inside physical bounds ``(index, bound)``, ``|x_i| ≤ b``:
         a state beyond moves to the bound and the others with it along their covariance,
         ``x ← x − P eᵢ (x_i − b_i) / P_ii`` (the estimate projection of Simon, *Kalman filtering
         with state constraints: a survey of linear and nonlinear algorithms*, IET Control
         Theory & Applications 4(8), 2010, §2.3, with weight P⁻¹). ``P`` is kept: the bound says
         where the state cannot be, not where it is, and a covariance shrunk at every epoch
-        the estimate pushes against it would claim the bound as new information each time."""
+        the estimate pushes against it would claim the bound as new information each time.
+        Returns ``(index, value before)`` of every state projected."""
+        held = []
         for index, bound in bounds:
             value = float(self.x[index])
             if abs(value) > bound and self.P[index, index] > 0.0:
                 excess = value - math.copysign(bound, value)
                 self.x = self.x - self.P[:, index] * (excess / self.P[index, index])
+                held.append((index, value))
+        return held
 
     def condition(self, index: int, value: float) -> None:
         """Condition on state ``index`` being exactly ``value``: an update with H = e_indexᵀ and

@@ -16,7 +16,7 @@ from typing import Any
 import numpy as np
 
 from fusion import __version__
-from fusion.engine import RunResult
+from fusion.engine import BOUND, RunResult
 from fusion.error_model import STATE_UNITS
 from fusion.fault_detection import ISOLATE, READMIT, FaultEvent
 from fusion.jumps import JUMP
@@ -203,7 +203,8 @@ def summary(result: RunResult, recording: Recording) -> str:
             f"faults     {actions.count(ISOLATE)} isolations, {actions.count(READMIT)} "
             f"re-admissions, {actions.count(JUMP)} state jumps taken in, "
             f"{actions.count(LOST_LOCK)} lost locks, {actions.count(REACQUIRE)} re-acquisitions,"
-            f" {actions.count(WIDEN)} widenings (faults.csv)"
+            f" {actions.count(WIDEN)} widenings, {actions.count(BOUND)} estimates held at their"
+            " bounds (faults.csv)"
         )
     if result.smoother_rejected:
         lines.append(

@@ -5,17 +5,19 @@ state's estimate is held inside (KalmanFilter.hold_bounds)."""
 from __future__ import annotations
 
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
 
 from fusion.config import ConfigError, load_config_data, parse_config
 from fusion.covariance_analysis import CovarianceAnalysis
-from fusion.engine import Engine, RunResult
+from fusion.engine import BOUND, Engine, RunResult
 from fusion.kalman import KalmanFilter
 from fusion.metrics import interpolate_truth
 from fusion.recording import Recording, read_recording
 from fusion.sim.simulate import simulate
+from tests.test_engine import make_recording
 
 
 def test_an_update_analysed_with_the_filters_own_rows_is_its_joseph_form() -> None:
@@ -54,10 +56,11 @@ def test_a_restart_is_of_the_standard_states() -> None:
 
 def test_an_estimate_past_its_bound_is_projected_back_with_its_correlated_states() -> None:
     """``|x_i| ≤ b``: the state moves to the bound, a correlated one by ``P_ji / P_ii`` of the
-    excess, and the covariance stays; an estimate inside its bound is left alone."""
+    excess, and the covariance stays; an estimate inside its bound is left alone. The
+    states projected are returned with their values before."""
     p = np.array([[4.0, 1.0, 0.0], [1.0, 1.0, 0.0], [0.0, 0.0, 1.0]])
     kf = KalmanFilter(np.array([0.5, -2.0, 9.0]), p)
-    kf.hold_bounds(((1, 0.6), (2, 10.0)))
+    assert kf.hold_bounds(((1, 0.6), (2, 10.0))) == [(1, -2.0)]
     np.testing.assert_allclose(kf.x, [0.5 + 1.0 * 1.4, -0.6, 9.0])
     np.testing.assert_array_equal(kf.P, p)
 
@@ -136,3 +139,19 @@ def test_the_motion_constraint_alone_reports_a_yaw_sigma_it_keeps(tmp_path: Path
     assert 0.6 <= rms(reported["invariant_analysis"]) <= 1.5
     position_rms = np.sqrt(np.mean(np.concatenate(horizontal) ** 2, axis=0))
     assert np.all((position_rms >= 0.5) & (position_rms <= 1.5)), position_rms
+
+
+def test_reaching_a_bound_is_a_faults_row_once_per_visit() -> None:
+    """The speed state of sins_mc held at its top speed gives one ``faults.csv`` row when it
+    reaches it, none while it stays there, and another after it has come back within 90 %."""
+    engine = Engine(parse_config(load_config_data("configs/sins_mc.yaml")), make_recording(1, 30.0))
+    layout = engine.layout
+    (index, bound), *_ = layout.bounds
+    bank = SimpleNamespace(faults=[])
+    kf = KalmanFilter(np.zeros(layout.dim), np.eye(layout.dim))
+    for value in (1.5 * bound, 1.2 * bound, 0.95 * bound, -1.1 * bound, 0.5 * bound, 2.0 * bound):
+        kf.x[index] = value
+        engine._hold_bounds(kf, layout, 0.0, bank)
+    rows = [(e.local, e.statistic, e.action) for e in bank.faults]
+    label = layout.labels[index]
+    assert rows == [(label, 1.5 * bound, BOUND), (label, 2.0 * bound, BOUND)], rows
