@@ -661,16 +661,20 @@ class Engine:
         self, kf: KalmanFilter, layout: StateLayout, t: float, bank: FilterBank
     ) -> None:
         """Hold ``kf``'s estimates inside their bounds; a ``faults.csv`` row (:data:`BOUND`)
-        when one reaches its bound."""
+        when one reaches its bound. Nothing to do past the projection unless a state is or
+        was at its bound (this runs after every accepted update)."""
+        held = kf.hold_bounds(layout.bounds)
+        if not held and not self._at_bound:
+            return
         bounds = dict(layout.bounds)
-        for index, value in kf.hold_bounds(layout.bounds):
+        for index, value in held:
             label = layout.labels[index]
             if label not in self._at_bound:
                 self._at_bound[label] = (kf, index)
                 reason = "estimate held at its physical bound (StateBlock.bound)"
                 bank.faults.append(FaultEvent(t, label, value, bounds[index], BOUND, reason))
-        for label, (held, index) in list(self._at_bound.items()):
-            if held is kf and abs(kf.x[index]) < BOUND_RELEASE * bounds[index]:
+        for label, (owner, index) in list(self._at_bound.items()):
+            if owner is kf and abs(kf.x[index]) < BOUND_RELEASE * bounds[index]:
                 del self._at_bound[label]
 
     def _gap_noise(
