@@ -878,13 +878,13 @@ class Engine:
         With ``filter.invariant_error`` such an update runs in the standard error."""
         coordinates = self._coordinates
         if coordinates is None or not m.consider:
-            return kf.update(m.z, rows, m.R, gate, shared, correlated, m.consider)
+            return kf.update(m.z, rows, m.R, gate, shared, correlated, m.consider, m.withheld)
         to_standard = coordinates.transform(kf.x.size, ctx.velocity, ctx.position_enu)
         kf.change_coordinates(to_standard)
         try:
             if shared is not None:
                 shared = to_standard @ shared @ to_standard.T
-            return kf.update(m.z, m.H, m.R, gate, shared, correlated, m.consider)
+            return kf.update(m.z, m.H, m.R, gate, shared, correlated, m.consider, m.withheld)
         finally:
             size = kf.x.size
             kf.change_coordinates(

@@ -178,6 +178,7 @@ class KalmanFilter:
         statistic_covariance: NDArray[np.float64] | None = None,
         correlated: CorrelatedNoise | None = None,
         consider: tuple[int, ...] = (),
+        withheld: bool = False,
     ) -> UpdateResult:
         """Measurement update (see module docstring); ``z`` (m,), ``h`` (m, n), ``r`` (m, m).
 
@@ -187,7 +188,8 @@ class KalmanFilter:
         ``P`` is inflated by 1/β_i and would make every test 1/β_i too lenient. ``correlated``:
         the noise carries stored errors (``R`` their part included). ``consider``: states
         whose gain is zero (Schmidt-Kalman): the Joseph form keeps P right for that gain and
-        leaves their variances unchanged.
+        leaves their variances unchanged. ``withheld``: the innovation is computed and the update
+        rejected, as the gate would (a reading the plugin's own test withholds).
         """
         z = np.atleast_1d(np.asarray(z, dtype=float))
         h = np.ascontiguousarray(np.atleast_2d(h), dtype=float)
@@ -207,8 +209,8 @@ class KalmanFilter:
         threshold = None
         if gate_probability is not None:
             threshold = chi2_threshold(len(z), gate_probability)
-            if nis > threshold:
-                return UpdateResult(False, nu, whitened, nis, threshold, whitening)
+        if withheld or (threshold is not None and nis > threshold):
+            return UpdateResult(False, nu, whitened, nis, threshold, whitening)
         if cov_state_noise is not None:
             ph_t = ph_t + cov_state_noise
         if consider:

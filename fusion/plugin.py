@@ -79,6 +79,10 @@ class Measurement:
     """The plugin's own fault indicator flags this epoch (e.g. a magnetic field whose norm or
     dip is off the expected earth field). The centralized filter logs it; the federated master
     counts it toward isolating the plugin's local filter."""
+    withheld: bool = False
+    """The plugin's own test says this reading is faulty (an NLOS range): the engine treats it
+    as its gate would treat an outlier — innovation logged, update rejected, counted towards a
+    lost lock — and corrects nothing."""
     at_rest: tuple[str, ...] = ()
     """Names of the plugin's states that are physically back at their rest value at this epoch
     (a slip ratio while the wheel stands still): a state that had left rest through a jump is
@@ -108,6 +112,7 @@ class Measurement:
             np.vstack([self.H, other.H]),
             scipy.linalg.block_diag(self.R, other.R),
             self.suspect or other.suspect,
+            self.withheld or other.withheld,
             self.at_rest + tuple(n for n in other.at_rest if n not in self.at_rest),
             _stacked_noise(self, other),
             self.consider,

@@ -598,9 +598,10 @@ def _nlos_rows(recording: Recording, result: RunResult) -> tuple[np.ndarray, np.
 
 
 def test_nlos_ranges_are_gated_alone(nlos_recording: Recording) -> None:
-    """The χ² gate rejects the NLOS ranges of A2 and almost nothing else; the position stays
-    consistent. Ungated, the same ranges drag the solution by decimetres."""
-    gated = Engine(_config(gate_probability=0.999), nlos_recording).run()
+    """The χ² gate alone (the NLOS test off) rejects the NLOS ranges of A2 and almost nothing
+    else; the position stays consistent. Ungated, the same ranges drag the solution by
+    decimetres."""
+    gated = Engine(_config(gate_probability=0.999, nlos_test=False), nlos_recording).run()
     accepted, nlos = _nlos_rows(nlos_recording, gated)
     err, sigma = _errors(gated.solution, nlos_recording)
     print(
@@ -613,10 +614,52 @@ def test_nlos_ranges_are_gated_alone(nlos_recording: Recording) -> None:
     assert np.sqrt(np.mean((err / sigma) ** 2)) < 1.5
     assert 0.7 <= gated.innovations["uwb"].whitened_rms() <= 1.3
 
-    ungated = Engine(_config(), nlos_recording).run()
+    ungated = Engine(_config(nlos_test=False), nlos_recording).run()
     err_ungated, _ = _errors(ungated.solution, nlos_recording)
     print(f"ungated max |err| {np.round(np.max(np.abs(err_ungated), axis=0), 3)}")
     assert np.max(np.abs(err_ungated)) > 0.2 > np.max(np.abs(err))
+
+
+def test_a_step_to_long_ranges_is_withheld_as_nlos_and_a_drift_is_not() -> None:
+    """NLOS arrives in one range: from the step to reading 0.3–1.5 m long every range of the
+    anchor is withheld, and the NLOS ends within twice ``NLOS_CAP / NLOS_DRIFT`` (the mean)
+    ranges of the ranges fitting again. A filter drifting towards the anchor lengthens its
+    ranges smoothly; that is never withheld (the engine's gate answers for it)."""
+    rng = np.random.default_rng(11)
+    true_range = float(np.linalg.norm(_true_tag() - np.array(ANCHORS_ENU["A1"])))
+    sigma = 0.05
+    segments = [
+        np.zeros(100),  # fitting
+        rng.uniform(0.3, 1.5, 100),  # NLOS, a bias drawn per range
+        np.zeros(200),  # fitting again
+        np.linspace(0.0, 0.6, 600),  # the filter drifting towards the anchor, to 12σ
+    ]
+    lengthening = np.concatenate(segments)
+    noisy = true_range + lengthening + sigma * rng.standard_normal(lengthening.size)
+    rec = _recording(ANCHORS_ENU, LEVER_ARM, [("A1", float(r)) for r in noisy])
+    assert rec.uwb is not None
+    plugin = UwbRanges("uwb", UwbOptions(sigma_range_m=sigma), rec)
+    layout = layout_with(plugin.state_blocks())
+    ctx = perturbed_context(
+        layout,
+        np.zeros(layout.dim),
+        position_enu=P_TRUE,
+        c_b_n=C_B_N,
+        covariance=np.zeros((layout.dim, layout.dim)),
+    )
+    withheld = []
+    for i in range(noisy.size):
+        m = plugin.measure(i, replace(ctx, t=float(rec.uwb.t[i])))
+        assert m is not None
+        withheld.append(m.withheld)
+    flags = np.split(np.array(withheld), np.cumsum([len(x) for x in segments])[:-1])
+    tail = int(np.argmin(flags[2])) if not flags[2].all() else flags[2].size
+    print("withheld per segment:", [int(f.sum()) for f in flags], "tail", tail)
+    assert not flags[0].any()
+    assert flags[1].all()
+    assert tail <= 2 * uwb_module.NLOS_CAP / uwb_module.NLOS_DRIFT
+    assert not flags[2][tail:].any()
+    assert not flags[3].any()
 
 
 def test_variational_bayes_restarts_from_the_prior_after_a_long_absence() -> None:

@@ -44,6 +44,22 @@ Tightly coupled ranges (:class:`UwbRanges`)
     non-line-of-sight (NLOS) range, whose bias is large and positive, is rejected alone by the
     engine's χ² gate (the block's ``gate_probability``) without taking the other anchors with it.
 
+    NLOS test (``nlos_test``, on by default). The gate alone lets an NLOS episode drag the
+    filter: NLOS on every anchor of a face end reads every range long, the clustered anchors
+    see much of that as one shift of the tag, and the ranges that happen to be lengthened least
+    pass the gate at 2–3σ, one after another, each pulling the estimate a little further (a
+    harsh random world: 1.2 m off at a σ of 4 cm after 20 s of NLOS). So an anchor's ranges
+    are withheld (:attr:`fusion.plugin.Measurement.withheld`: logged and counted as rejected,
+    nothing corrected) from the range whose whitened lengthening ``w = (ρ − r̂)/√S`` is at
+    least :data:`NLOS_STEP` and as much above the anchor's previous range's, until a one-sided
+    CUSUM of ``w`` started at :data:`NLOS_CAP` falls to zero (Page 1954; Basseville &
+    Nikiforov, *Detection of Abrupt Changes*, 1993, §2.2). NLOS arrives in one range (a longer
+    path), while a filter drifting towards the anchors lengthens its ranges smoothly: the
+    step tells them apart, and a drift stays the gate's and the lost lock's to answer. The
+    CUSUM holds the anchor out while its ranges keep reading long, even once the filter's σ,
+    grown without them, makes single NLOS ranges look like 2σ ones; after the NLOS it takes
+    some ``NLOS_CAP / NLOS_DRIFT`` (40) ranges that fit.
+
     Epoch grid (``epoch_grid_s``): a range system polls its anchors a few milliseconds apart
     (five anchors at 3.1 ms in ``longwall-200m``), and one epoch per range means one covariance
     step, one fusion and one SINS correction per range. On a grid, range k (time t_k) is taken
@@ -198,6 +214,18 @@ SHORT_RANGE_WINDOW_S = 3.0
 gate before the filter is taken to be on a wrong solution (:meth:`UwbRanges.off_solution`)."""
 REACQUIRE_SPREAD_M = 0.1
 """1σ per axis of the tag's travel over that window, and of the lever arm's turn."""
+NLOS_STEP = 6.0
+"""A range that reads this many σ (of its innovation) longer than the anchor's previous one did,
+and at least this long itself, starts the anchor's NLOS: a bias of 0.3 m and more arrives in
+one range, a filter's drift moves the innovation by millimetres between two ranges."""
+NLOS_STEP_GAP_S = 1.0
+"""The anchor's previous range counts for the step only this recently (otherwise a lengthening
+of 0 is taken: a range met after a gap that reads ``NLOS_STEP`` σ long starts NLOS as well)."""
+NLOS_DRIFT = 0.5
+"""Reference value k (σ) of the CUSUM that ends an anchor's NLOS."""
+NLOS_CAP = 20.0
+"""Where that CUSUM starts (σ): it falls to zero, and the NLOS ends, after some ``NLOS_CAP / k``
+(40) ranges that fit, fewer if they read short; ranges that keep reading long hold it up."""
 
 
 class LeastSquaresOptions(BaseModel):
@@ -259,6 +287,11 @@ class UwbOptions(PluginOptions):
     adaptive_screen_probability: float = Field(
         0.999, gt=0, lt=1, description="χ² quantile beyond which a range does not teach R"
     )
+    nlos_test: bool = Field(
+        True,
+        description="withhold an anchor's ranges from a step to reading long until they fit"
+        " again (NLOS; module docstring)",
+    )
     least_squares: LeastSquaresOptions = Field(
         default_factory=LeastSquaresOptions,
         description="the UWB-only baseline (filter.architecture: standalone)",
@@ -317,6 +350,10 @@ class UwbRanges(Plugin):
         self.beta = np.full(n, self._beta0)
         self.t_last = np.full(n, np.nan)
         self.short_since = np.full(n, np.nan)
+        self.lengthening = np.zeros(n)
+        self.t_lengthening = np.full(n, -np.inf)
+        self.reads_long = np.zeros(n)
+        self.nlos = np.zeros(n, dtype=bool)
 
     def standalone_solution(self, gate_probability: float | None, log: InnovationLog) -> Solution:
         """The UWB-only least-squares baseline with ``options.least_squares``."""
@@ -373,6 +410,8 @@ class UwbRanges(Plugin):
             return None
         (p0, c0), (p1, c1) = earlier, later
         spread = 2 * REACQUIRE_SPREAD_M**2 * np.eye(3)
+        self.t_lengthening[:] = -np.inf  # the filter restarts at the fix: old residuals are moot
+        self.nlos[:] = False
         return Reacquisition(
             p1 - arm_enu, c1 + spread, (p1 - p0) / window, (c0 + c1 + 2 * spread) / window**2
         )
@@ -498,12 +537,45 @@ class UwbRanges(Plugin):
             h[layout.slice(self.bias_block).start + k] = -1.0
         innovation = z - float(h @ ctx.x)  # against the corrected estimate, as the gate sees it
         predicted = float(h @ ctx.covariance @ h) + spread
+        # A slow machine: the lever arm's heading column is the consider state (docstring).
+        consider = (att.start + 2,) if ctx.observable_force else ()
+        if self._in_nlos(index, k, innovation, predicted + self._noise(k)):
+            variance = self._noise(k) + spread
+            return Measurement(
+                np.array([z]), h[None, :], np.array([[variance]]), withheld=True, consider=consider
+            )
         noise = self._variance(index, k, innovation, predicted)
         self._count_short(index, k, innovation, predicted + noise)
         variance = noise + spread
-        # A slow machine: the lever arm's heading column is the consider state (docstring).
-        consider = (att.start + 2,) if ctx.observable_force else ()
         return Measurement(np.array([z]), h[None, :], np.array([[variance]]), consider=consider)
+
+    def _noise(self, k: int) -> float:
+        """Anchor ``k``'s current ranging variance (configured or learned), as it stands."""
+        if not self.adaptive:
+            return self.options.sigma_range_m**2
+        return float(self.beta[k] / self.alpha[k])
+
+    def _in_nlos(self, index: int, k: int, innovation: float, s: float) -> bool:
+        """Whether range ``index`` of anchor ``k`` (innovation ``r̂ − ρ``, variance ``s``) is
+        withheld as NLOS. Its whitened lengthening ``w = (ρ − r̂)/√s`` starts the anchor's NLOS
+        by a step of :data:`NLOS_STEP` over the anchor's previous range; Page's one-sided
+        CUSUM ``g ← min(cap, max(0, g + w − k))``, started at the cap, then ends it at zero
+        (:data:`NLOS_DRIFT`, :data:`NLOS_CAP`). A step, because a drifting filter moves the
+        innovation smoothly; a CUSUM, because the filter's σ grows while the anchor is
+        withheld, and single NLOS ranges then read long by only a few σ."""
+        if not self.options.nlos_test:
+            return False
+        t = float(self.data.t[index])
+        w = -innovation / math.sqrt(s)
+        recent = t - self.t_lengthening[k] <= NLOS_STEP_GAP_S
+        step = w - (float(self.lengthening[k]) if recent else 0.0)
+        self.lengthening[k], self.t_lengthening[k] = w, t
+        if self.nlos[k]:
+            self.reads_long[k] = min(NLOS_CAP, max(0.0, float(self.reads_long[k]) + w - NLOS_DRIFT))
+            self.nlos[k] = self.reads_long[k] > 0.0
+        elif w >= NLOS_STEP and step >= NLOS_STEP:
+            self.nlos[k], self.reads_long[k] = True, NLOS_CAP
+        return bool(self.nlos[k])
 
     def _count_short(self, index: int, k: int, innovation: float, s: float) -> None:
         """Track how long anchor ``k``'s ranges have read short of the filter's distance by
