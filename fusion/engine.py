@@ -841,7 +841,8 @@ class Engine:
         if res.accepted:
             self._hold_bounds(kf, layout, t, bank)
         holds = res.accepted and self._needs_holds and _holds(m.H, layout)
-        bank.record(src, t, res, m.suspect, holds)
+        if not m.withheld:  # the plugin's own test has dealt with it: not the monitor's
+            bank.record(src, t, res, m.suspect, holds)
         if holds:
             self._last_held[src] = t
         lock = self._locks[src]

@@ -82,7 +82,9 @@ class Measurement:
     withheld: bool = False
     """The plugin's own test says this reading is faulty (an NLOS range): the engine treats it
     as its gate would treat an outlier — innovation logged, update rejected, counted towards a
-    lost lock — and corrects nothing."""
+    lost lock — and corrects nothing. The federated master's fault monitor does not see it:
+    the plugin has dealt with it, and a run of withheld readings would otherwise isolate a
+    local whose other readings are sound."""
     at_rest: tuple[str, ...] = ()
     """Names of the plugin's states that are physically back at their rest value at this epoch
     (a slip ratio while the wheel stands still): a state that had left rest through a jump is
