@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 from filterpy.kalman import KalmanFilter as FilterpyKF
 
-from fusion.config import load_config
+from fusion.config import load_config, parse_config
 from fusion.engine import Engine
 from fusion.fault_detection import ISOLATE
 from fusion.kalman import KalmanFilter
@@ -179,14 +179,19 @@ def test_plausible_correction_allows_what_the_forward_statistics_allow() -> None
 
 
 def test_smoothing_across_isolations_is_finite_and_no_worse(tmp_path: Path) -> None:
-    """full_afkf_rts through 30 s of NLOS on every anchor: the UWB local is isolated and
-    re-admitted, each a step whose fused prior and posterior are not one filter's. The windows
-    close before them: the smoothed track is finite, its σ too, and it is no worse than the
-    forward one (on an independent world the smoother returned a NaN σ from an isolation on)."""
+    """full_afkf_rts through 30 s of NLOS on every anchor, with the UWB plugin's NLOS test off
+    so that the master isolates the UWB local and re-admits it, each a step whose fused prior
+    and posterior are not one filter's. The windows close before them: the smoothed track is
+    finite, its σ too, and it is no worse than the forward one (on an independent world the
+    smoother returned a NaN σ from an isolation on)."""
     nlos = "faults=[{kind: uwb_nlos, t_start: 200, t_end: 230, bias_m: [0.3, 1.5]}]"
     _, disturbed = clean_and_faulty(tmp_path, nlos, duration_s=280.0, uwb_rate_hz=40.0)
     assert disturbed.truth is not None
-    result = Engine(load_config(CONFIGS / "full_afkf_rts.yaml"), disturbed).run()
+    data = load_config(CONFIGS / "full_afkf_rts.yaml").model_dump()
+    for block in data["plugins"]:
+        if block["type"] == "uwb":
+            block["nlos_test"] = False
+    result = Engine(parse_config(data), disturbed).run()
     assert any(e.action == ISOLATE for e in result.faults)
     assert result.smoothed is not None
     assert np.all(np.isfinite(result.smoothed.position))
