@@ -47,8 +47,8 @@ Tightly coupled ranges (:class:`UwbRanges`)
     NLOS test (``nlos_test``, on by default). The gate alone lets an NLOS episode drag the
     filter: NLOS on every anchor of a face end reads every range long, the clustered anchors
     see much of that as one shift of the tag, and the ranges that happen to be lengthened least
-    pass the gate at 2–3σ, one after another, each pulling the estimate a little further (a
-    harsh random world: 1.2 m off at a σ of 4 cm after 20 s of NLOS). So an anchor's ranges
+    pass the gate at 2–3σ, one after another, each pulling the estimate a little further
+    (docs/design/2026-11-29-nlos-test.md). So an anchor's ranges
     are withheld (:attr:`fusion.plugin.Measurement.withheld`: logged and counted as rejected,
     nothing corrected) from the range whose whitened lengthening ``w = (ρ − r̂)/√S`` is at
     least :data:`NLOS_STEP` and as much above the anchor's previous range's, until a one-sided
