@@ -455,8 +455,16 @@ def _variational_bayes_at_rest(
 ) -> tuple[Recording, UwbRanges, MeasurementContext]:
     """A VB plugin (prior 0.03 m, τ = 5 s) on ``ranges`` and a context at the true pose with
     an exact state (H P Hᵀ = 0: the innovation is the range error)."""
-    rec = _recording(ANCHORS_ENU, LEVER_ARM, ranges)
     opts = UwbOptions(sigma_range_m=0.03, adaptive_noise="variational_bayes", adaptive_window_s=5)
+    return _plugin_at_rest(ranges, opts)
+
+
+def _plugin_at_rest(
+    ranges: list[tuple[str, float]], opts: UwbOptions
+) -> tuple[Recording, UwbRanges, MeasurementContext]:
+    """A plugin with ``opts`` on ``ranges`` and a context at the true pose with an exact
+    state (H P Hᵀ = 0: the innovation is the range error)."""
+    rec = _recording(ANCHORS_ENU, LEVER_ARM, ranges)
     plugin = UwbRanges("uwb", opts, rec)
     layout = layout_with(plugin.state_blocks())
     ctx = perturbed_context(
@@ -636,17 +644,9 @@ def test_a_step_to_long_ranges_is_withheld_as_nlos_and_a_drift_is_not() -> None:
     ]
     lengthening = np.concatenate(segments)
     noisy = true_range + lengthening + sigma * rng.standard_normal(lengthening.size)
-    rec = _recording(ANCHORS_ENU, LEVER_ARM, [("A1", float(r)) for r in noisy])
+    ranges = [("A1", float(r)) for r in noisy]
+    rec, plugin, ctx = _plugin_at_rest(ranges, UwbOptions(sigma_range_m=sigma))
     assert rec.uwb is not None
-    plugin = UwbRanges("uwb", UwbOptions(sigma_range_m=sigma), rec)
-    layout = layout_with(plugin.state_blocks())
-    ctx = perturbed_context(
-        layout,
-        np.zeros(layout.dim),
-        position_enu=P_TRUE,
-        c_b_n=C_B_N,
-        covariance=np.zeros((layout.dim, layout.dim)),
-    )
     withheld = []
     for i in range(noisy.size):
         m = plugin.measure(i, replace(ctx, t=float(rec.uwb.t[i])))
