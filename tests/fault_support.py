@@ -1,11 +1,13 @@
-"""Fault-injection helpers shared by the tests: a clean/faulty pair of recordings and the
-maximum horizontal error of a run (``horizontal_max`` of :func:`fusion.metrics.compute_metrics`).
+"""Fault-injection helpers shared by the tests: a clean/faulty pair of recordings, the
+maximum horizontal error of a run (``horizontal_max`` of :func:`fusion.metrics.compute_metrics`)
+and a configuration with the UWB plugin's NLOS test off.
 """
 
 from __future__ import annotations
 
 from pathlib import Path
 
+from fusion.config import FusionConfig, parse_config
 from fusion.engine import RunResult
 from fusion.metrics import compute_metrics
 from fusion.recording import Recording, read_recording
@@ -33,3 +35,13 @@ def max_horizontal(result: RunResult, rec: Recording) -> float:
     """Largest horizontal position error of ``result`` against ``rec``'s truth (m)."""
     assert rec.truth is not None
     return float(compute_metrics(result.solution, rec.truth)["horizontal_max"])
+
+
+def without_nlos_test(config: FusionConfig) -> FusionConfig:
+    """``config`` with every ``uwb`` block's ``nlos_test`` off: NLOS left to the gate and to
+    the federated master's isolation."""
+    data = config.model_dump()
+    for block in data["plugins"]:
+        if block["type"] == "uwb":
+            block["nlos_test"] = False
+    return parse_config(data)

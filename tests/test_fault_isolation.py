@@ -21,7 +21,7 @@ from fusion.jumps import JUMP
 from fusion.metrics import interpolate_truth
 from fusion.recording import Recording, read_recording
 from fusion.sim.simulate import simulate
-from tests.fault_support import clean_and_faulty, max_horizontal
+from tests.fault_support import clean_and_faulty, max_horizontal, without_nlos_test
 
 CONFIGS = Path(__file__).resolve().parents[1] / "configs"
 SHORT = ["static_start_s=30", "duration_s=125"]
@@ -167,11 +167,7 @@ def test_uwb_nlos_withheld_or_isolated_and_bounded(tmp_path: Path) -> None:
     assert not [e for e in result.faults if e.action == ISOLATE]
     assert worst <= 1.3 * nominal
 
-    data = config.model_dump()
-    for block in data["plugins"]:
-        if block["type"] == "uwb":
-            block["nlos_test"] = False
-    result = Engine(parse_config(data), disturbed).run()
+    result = Engine(without_nlos_test(config), disturbed).run()
     events = [(e.local, e.action, e.t) for e in result.faults]
     worst = max_horizontal(result, disturbed)
     print(events, f"max horizontal: {worst:.3f} m with NLOS, {nominal:.3f} m without")

@@ -9,13 +9,13 @@ import numpy as np
 import pytest
 from filterpy.kalman import KalmanFilter as FilterpyKF
 
-from fusion.config import load_config, parse_config
+from fusion.config import load_config
 from fusion.engine import Engine
 from fusion.fault_detection import ISOLATE
 from fusion.kalman import KalmanFilter
 from fusion.metrics import compute_metrics
 from fusion.smoother import StepStore, plausible_correction, rts
-from tests.fault_support import clean_and_faulty
+from tests.fault_support import clean_and_faulty, without_nlos_test
 
 CONFIGS = Path(__file__).resolve().parents[1] / "configs"
 
@@ -187,11 +187,8 @@ def test_smoothing_across_isolations_is_finite_and_no_worse(tmp_path: Path) -> N
     nlos = "faults=[{kind: uwb_nlos, t_start: 200, t_end: 230, bias_m: [0.3, 1.5]}]"
     _, disturbed = clean_and_faulty(tmp_path, nlos, duration_s=280.0, uwb_rate_hz=40.0)
     assert disturbed.truth is not None
-    data = load_config(CONFIGS / "full_afkf_rts.yaml").model_dump()
-    for block in data["plugins"]:
-        if block["type"] == "uwb":
-            block["nlos_test"] = False
-    result = Engine(parse_config(data), disturbed).run()
+    config = without_nlos_test(load_config(CONFIGS / "full_afkf_rts.yaml"))
+    result = Engine(config, disturbed).run()
     assert any(e.action == ISOLATE for e in result.faults)
     assert result.smoothed is not None
     assert np.all(np.isfinite(result.smoothed.position))

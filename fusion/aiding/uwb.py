@@ -353,7 +353,6 @@ class UwbRanges(Plugin):
         self.lengthening = np.zeros(n)
         self.t_lengthening = np.full(n, -np.inf)
         self.reads_long = np.zeros(n)
-        self.nlos = np.zeros(n, dtype=bool)
 
     def standalone_solution(self, gate_probability: float | None, log: InnovationLog) -> Solution:
         """The UWB-only least-squares baseline with ``options.least_squares``."""
@@ -411,7 +410,7 @@ class UwbRanges(Plugin):
         (p0, c0), (p1, c1) = earlier, later
         spread = 2 * REACQUIRE_SPREAD_M**2 * np.eye(3)
         self.t_lengthening[:] = -np.inf  # the filter restarts at the fix: old residuals are moot
-        self.nlos[:] = False
+        self.reads_long[:] = 0.0
         return Reacquisition(
             p1 - arm_enu, c1 + spread, (p1 - p0) / window, (c0 + c1 + 2 * spread) / window**2
         )
@@ -539,8 +538,9 @@ class UwbRanges(Plugin):
         predicted = float(h @ ctx.covariance @ h) + spread
         # A slow machine: the lever arm's heading column is the consider state (docstring).
         consider = (att.start + 2,) if ctx.observable_force else ()
-        if self._in_nlos(index, k, innovation, predicted + self._noise(k)):
-            variance = self._noise(k) + spread
+        current = self._noise(k)
+        if self._in_nlos(index, k, innovation, predicted + current):
+            variance = current + spread
             return Measurement(
                 np.array([z]), h[None, :], np.array([[variance]]), withheld=True, consider=consider
             )
@@ -570,12 +570,12 @@ class UwbRanges(Plugin):
         recent = t - self.t_lengthening[k] <= NLOS_STEP_GAP_S
         step = w - (float(self.lengthening[k]) if recent else 0.0)
         self.lengthening[k], self.t_lengthening[k] = w, t
-        if self.nlos[k]:
-            self.reads_long[k] = min(NLOS_CAP, max(0.0, float(self.reads_long[k]) + w - NLOS_DRIFT))
-            self.nlos[k] = self.reads_long[k] > 0.0
+        g = float(self.reads_long[k])  # > 0: the anchor is in NLOS
+        if g > 0.0:
+            self.reads_long[k] = min(NLOS_CAP, max(0.0, g + w - NLOS_DRIFT))
         elif w >= NLOS_STEP and step >= NLOS_STEP:
-            self.nlos[k], self.reads_long[k] = True, NLOS_CAP
-        return bool(self.nlos[k])
+            self.reads_long[k] = NLOS_CAP
+        return bool(self.reads_long[k] > 0.0)
 
     def _count_short(self, index: int, k: int, innovation: float, s: float) -> None:
         """Track how long anchor ``k``'s ranges have read short of the filter's distance by
@@ -592,7 +592,7 @@ class UwbRanges(Plugin):
         spread over the position's uncertainty (:func:`second_order_range`), which is part of
         the innovation's variance, not a ranging noise to learn."""
         if not self.adaptive:
-            return self.options.sigma_range_m**2
+            return self._noise(k)
         t = float(self.data.t[index])
         if np.isfinite(self.t_last[k]):
             forget = math.exp(-(t - self.t_last[k]) / self.options.adaptive_window_s)
@@ -601,7 +601,7 @@ class UwbRanges(Plugin):
             if self.alpha[k] < 0.5:
                 self.alpha[k], self.beta[k] = self._alpha0, self._beta0
         self.t_last[k] = t
-        r = self.beta[k] / self.alpha[k]
+        r = self._noise(k)
         if nu * nu / (s + r) > self._screen:
             return r
         alpha = self.alpha[k] + 0.5
