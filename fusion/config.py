@@ -206,6 +206,16 @@ class JumpDetectionOptions(_Strict):
         low_open=True,
         high_open=True,
     )
+    return_probability: float = _within(
+        0.999,
+        0,
+        1,
+        "χ²_1 quantile η of the return test (a state held away from its rest value jumping"
+        " back there, a jump of known size); a test's false alarm is at most Q(√η), a"
+        " probability",
+        low_open=True,
+        high_open=True,
+    )
     min_updates: int = _within(
         5,
         1,

@@ -404,6 +404,8 @@ class Engine:
             if states
             else None
         )
+        if jumps is not None and isinstance(bank, FederatedFilter):
+            bank.explain = jumps.explanation
         t0, t_end = float(imu.t[0]), float(imu.t[-1])
         rate = self.config.output.rate_hz
         output_times = np.arange(t0 + 1.0 / rate, t_end + 1e-9, 1.0 / rate) if rate else np.empty(0)

@@ -74,8 +74,10 @@ filtering on its own). A local that owns a state that may jump (:mod:`fusion.jum
 isolated only once it has failed on ``confirm_updates`` consecutive updates: a jump the detector
 takes in within that time explains the failure (the windows are then forgotten) and the local
 stays in the fusion, aiding with the jump estimated, rather than leaving the SINS to coast.
-An isolated local is *re-admitted* once it has passed the test without
-interruption for ``hold_s`` seconds. Every transition is a :class:`FaultEvent` (written to
+A local whose failure a jump of another local's state explains is
+not isolated at all (:class:`fusion.federated.FederatedFilter`, the ``excused`` argument of
+:meth:`FaultMonitor.observe`). An isolated local is *re-admitted* once it has passed the test
+without interruption for ``hold_s`` seconds. Every transition is a :class:`FaultEvent` (written to
 ``faults.csv``).
 """
 
@@ -83,6 +85,7 @@ from __future__ import annotations
 
 import math
 from collections import deque
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -246,9 +249,12 @@ class FaultMonitor:
         suspect: bool,
         source: str = "",
         whitened: NDArray[np.float64] | None = None,
+        excused: Callable[[], bool] | None = None,
     ) -> FaultEvent | None:
         """Add one update of plugin ``source`` (its NIS and, for the mean test, its whitened
-        innovation); return the event if the local changes state."""
+        innovation); return the event if the local changes state. ``excused``, asked when the
+        local would be isolated: whether something else explains the failure (it then counts as
+        failing, but the local stays in)."""
         opts = self.options
         if not opts.enabled:
             return None
@@ -277,6 +283,8 @@ class FaultMonitor:
             self._clean_since = None
             self._failing += 1
             if not self.isolated and self._failing > self.confirm_updates:
+                if excused is not None and excused():
+                    return None
                 self.isolated = True
                 if flagged:
                     reason = "plugin indicator"
@@ -294,6 +302,17 @@ class FaultMonitor:
             self.isolated = False
             return FaultEvent(t, self.local, statistic, threshold, READMIT, "consistent for hold")
         return None
+
+    def keep_isolated(self, t: float) -> None:
+        """Refuse a re-admission just reported: the local stays isolated and its hold restarts."""
+        self.isolated = True
+        self._clean_since = t
+
+    def isolate(self, t: float, statistic: float, threshold: float, reason: str) -> FaultEvent:
+        """Isolate the local for a fault found elsewhere (a jump against its state's direction)."""
+        self.isolated = True
+        self._clean_since = None
+        return FaultEvent(t, self.local, statistic, threshold, ISOLATE, reason)
 
     def _flagged_for(self, t: float, source: str, suspect: bool) -> float:
         """How long plugin ``source``'s indicator has flagged without a break (s; −inf: it does

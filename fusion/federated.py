@@ -80,12 +80,21 @@ nothing better to feed back). A local whose updates hold the SINS (fix its veloc
 stays a member while isolated as long as no healthy local holds it (:data:`LAST_HOLDER`): a MEMS
 SINS left to coast drifts further than any one sensor's fault pulls (harsh random worlds,
 docs/design/2026-11-27-harsh-worlds.md).
+
+A local whose failure a jump of another local's state explains (the jump detector's
+:meth:`~fusion.jumps.JumpDetector.explanation`) is not isolated for it: a slipping wheel drags
+the master, and the UWB ranges that disagree with the master are the sensor in the right. If
+the detector may take the jump in, the local waits for its decision; if the jump runs against
+a one-way state's direction (a wheel that under-reads cannot be slipping: it skids, or the
+encoder loses counts), the state's owner is isolated instead, and it is not re-admitted while
+that hypothesis stands (docs/design/2026-11-29-slip-ends-and-skids.md).
 """
 
 from __future__ import annotations
 
 import functools
-from collections.abc import Iterator, Sequence
+import math
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -95,6 +104,7 @@ from fusion.config import FederatedOptions
 from fusion.error_model import POSITION, StateLayout
 from fusion.fault_detection import ISOLATE, READMIT, FaultEvent, FaultMonitor
 from fusion.filter_bank import COMMON
+from fusion.jumps import Explanation
 from fusion.kalman import KalmanFilter, UpdateResult, cholesky_solve
 from fusion.lock import inflation_variances
 
@@ -314,6 +324,9 @@ class FederatedFilter:
             if options.master_share > 0
             else None
         )
+        self.explain: Callable[[], Explanation | None] | None = None
+        """The jump detector's :meth:`~fusion.jumps.JumpDetector.explanation`, if any: asked
+        before a local is isolated (:meth:`_excused`)."""
         self._last_fusion = -np.inf
         self._now = -np.inf
         self._position = layout.slice(POSITION)
@@ -356,12 +369,46 @@ class FederatedFilter:
         if holds:
             f.last_held = t
         source = self._plugin_names[plugin]
-        event = f.monitor.observe(t, result.nis, result.dof, suspect, source, result.whitened)
+        excused = functools.partial(self._excused, f, t)
+        event = f.monitor.observe(
+            t, result.nis, result.dof, suspect, source, result.whitened, excused
+        )
+        if event is not None and event.action == READMIT and self._blamed(f):
+            f.monitor.keep_isolated(t)
+            event = None
         if event is not None:
             if event.action == ISOLATE and self._holding(f) and f in self._members():
                 event = replace(event, reason=f"{event.reason}; {LAST_HOLDER}")
             self.faults.append(event)
             f.reinitialize = event.action == READMIT
+
+    def _blamed(self, f: LocalFilter) -> bool:
+        """Whether a jump against the direction of one of local ``f``'s states is still under
+        way (its sensor is still at fault: no re-admission)."""
+        explanation = self.explain() if self.explain is not None else None
+        return (
+            explanation is not None
+            and not explanation.allowed
+            and explanation.state.block in f.layout
+        )
+
+    def _excused(self, f: LocalFilter, t: float) -> bool:
+        """Whether a jump of another local's state explains local ``f``'s failure: a jump the
+        detector may take in (``f`` waits for its decision), or one against a one-way state's
+        direction (a wheel that under-reads: its owner is isolated instead of ``f``)."""
+        explanation = self.explain() if self.explain is not None else None
+        if explanation is None:
+            return False
+        owner = next(g for g in self.locals if explanation.state.block in g.layout)
+        if owner is f:
+            return False
+        if not explanation.allowed and not owner.monitor.isolated:
+            reason = (
+                f"{explanation.state.name} jumped by {explanation.jump:+.3g} at"
+                f" {explanation.onset:.1f} s, against its direction: {f.name} disagrees with it"
+            )
+            self.faults.append(owner.monitor.isolate(t, explanation.ratio, math.nan, reason))
+        return True
 
     def _holding(self, f: LocalFilter) -> bool:
         """Whether local ``f`` had an update that holds the SINS within the last χ² window."""

@@ -49,6 +49,26 @@ slip whose onset went undetected (slow, at a crawl) ends in what looks like a ju
 way, which must not be taken for a new slip; while the state is at rest, jumps against the
 direction are not taken in.
 
+The return test. A state held away from rest is also watched for its jump back there, a jump
+whose size is known: Δ ~ N(rest − x̂_θ, σ²_θ), x̂_θ and σ²_θ the state's estimate and variance
+when the hypothesis opened at θ. Its log-likelihood ratio against no jump, marginalised over
+that Δ (with v = σ²_θ),
+
+    ℓ_r = d²/c − (d − Δ̄ c)² / (c (1 + c v)) − ln(1 + c v),       Δ̄ = rest − x̂_θ,
+
+is compared with the χ²_1 quantile η of ``return_probability`` (0.999: η = 10.8; with v = 0 a
+test's false alarm is at most Q(√η) whatever the jump's size, against 2 Q(√η_GLR) for a free
+jump), and taken only where the estimated jump is within 3σ of Δ̄ (:data:`RETURN_MISFIT`: the
+return must explain the data, not only explain it better than no jump). It runs at every
+update at which the GLR declares nothing. Every slip ends, so its end needs less evidence than
+its onset: an end left undetected keeps the wheel's scale wrong until the next standstill,
+and the federated filter then isolated the UWB local that disagreed with it
+(docs/design/2026-11-29-slip-ends-and-skids.md).
+
+A jump under way explains other sensors' innovations too. :meth:`JumpDetector.explanation`
+gives the likeliest open hypothesis once its ratio passes η, in either direction; the federated
+filter asks it before isolating a local (:class:`fusion.federated.FederatedFilter`).
+
 A plugin may also know that a state is back at rest without any jump to detect: a wheel that
 stands still does not slip, so a slip episode ends at the latest when the machine stops (at a
 standstill s has no effect on any reading and nothing could detect its end). The plugin says so
@@ -76,6 +96,9 @@ from fusion.filter_bank import FilterBank
 from fusion.kalman import UpdateResult, chi2_threshold, whiten
 
 JUMP = "jump"
+RETURN_MISFIT = 9.0
+"""Largest squared z-score of the estimated jump from the return to rest for the return test
+(3σ: the data must be explained by the return, not only better than by no jump)."""
 
 
 @dataclass(frozen=True)
@@ -105,6 +128,19 @@ def jump_states(layout: StateLayout) -> list[JumpState]:
                     )
                 )
     return states
+
+
+@dataclass(frozen=True)
+class Explanation:
+    """A jump under way that explains the innovations: the likeliest open hypothesis, past the
+    return test's threshold (:meth:`JumpDetector.explanation`). ``allowed``: the detector may
+    take it in (a jump against a one-way state's direction from rest may not)."""
+
+    state: JumpState
+    ratio: float
+    jump: float
+    onset: float
+    allowed: bool
 
 
 class JumpDetector:
@@ -137,13 +173,17 @@ class JumpDetector:
         self.options = options
         self.on_jump = on_jump
         self.threshold = chi2_threshold(1, options.probability)
+        self.return_threshold = chi2_threshold(1, options.return_probability)
         self._state = np.empty(0, np.intp)  # per column: which of ``states``
         self._onset = np.empty(0)
+        self._held = np.empty(0)  # per column: the state's estimate and variance at its onset
+        self._held_variance = np.empty(0)
         self._d = np.empty(0)
         self._c = np.empty(0)
         self._n = np.empty(0, np.intp)
         self._last_opened = -np.inf
         self._at_rest = np.array([s.rest is not None for s in states])
+        self._rest = np.array([np.nan if s.rest is None else s.rest for s in states])
         self._direction = np.array([s.leaves_rest for s in states])
         prior = np.diag(layout.initial_covariance())
         self._prior_variance = np.array([prior[s.index] for s in states])
@@ -161,8 +201,12 @@ class JumpDetector:
         for k, s in enumerate(self.states):
             columns[s.index, k] = 1.0
         bank.add_signatures(columns)
+        x, p = bank.estimate()
+        index = [s.index for s in self.states]
         self._state = np.append(self._state, np.arange(len(self.states)))
         self._onset = np.append(self._onset, np.full(len(self.states), t))
+        self._held = np.append(self._held, x[index])
+        self._held_variance = np.append(self._held_variance, p[index, index])
         self._d = np.append(self._d, np.zeros(len(self.states)))
         self._c = np.append(self._c, np.zeros(len(self.states)))
         self._n = np.append(self._n, np.zeros(len(self.states), np.intp))
@@ -195,7 +239,7 @@ class JumpDetector:
         ratio = np.where(possible, self._d**2 / np.where(possible, self._c, 1.0), 0.0)
         best = int(np.argmax(ratio))
         if ratio[best] <= self.threshold or self._n[best] < self.options.min_updates:
-            return None  # the likeliest onset has too few updates yet: wait for them
+            return self._return_to_rest(t, bank)
         jump, variance = self._d[best] / self._c[best], 1.0 / self._c[best]
         k, onset = int(self._state[best]), float(self._onset[best])
         state = self.states[k]
@@ -222,6 +266,60 @@ class JumpDetector:
         self._report(state, onset, before)
         return FaultEvent(t, state.name, float(ratio[best]), self.threshold, JUMP, reason)
 
+    def explanation(self) -> Explanation | None:
+        """The likeliest open hypothesis with ``min_updates`` updates if its likelihood ratio
+        passes :attr:`return_threshold`, in either direction; ``None`` otherwise. A local
+        failing its fault test while a jump elsewhere explains its innovations is not the one
+        at fault (:class:`fusion.federated.FederatedFilter`)."""
+        ready = (self._c > 0) & (self._n >= self.options.min_updates)
+        if not ready.any():
+            return None
+        ratio = np.where(ready, self._d**2 / np.where(ready, self._c, 1.0), 0.0)
+        best = int(np.argmax(ratio))
+        if ratio[best] <= self.return_threshold:
+            return None
+        k = int(self._state[best])
+        direction = self._direction[k] if self._at_rest[k] else 0
+        return Explanation(
+            self.states[k],
+            float(ratio[best]),
+            float(self._d[best] / self._c[best]),
+            float(self._onset[best]),
+            bool(direction * self._d[best] >= 0),
+        )
+
+    def _return_to_rest(self, t: float, bank: FilterBank) -> FaultEvent | None:
+        """The return test: take in the likeliest return to rest of a held state, if its
+        statistic passes :attr:`return_threshold` (see the module docstring)."""
+        rest = self._rest[self._state]
+        held = ~self._at_rest[self._state] & np.isfinite(rest) & (self._c > 0)
+        held &= self._n >= self.options.min_updates
+        if not held.any():
+            return None
+        mean = np.where(held, rest - self._held, 0.0)  # the jump back to rest, N(mean, v)
+        v, c, d = self._held_variance, np.where(held, self._c, 1.0), self._d
+        spread = 1.0 + c * v
+        misfit = (d - mean * c) ** 2 / (c * spread)  # (Δ̂ − mean)² over its variance
+        statistic = d**2 / c - misfit - np.log(spread)
+        statistic = np.where(held & (misfit <= RETURN_MISFIT), statistic, -np.inf)
+        best = int(np.argmax(statistic))
+        if statistic[best] <= self.return_threshold:
+            return None
+        jump = (mean[best] / v[best] + d[best]) / (1.0 / v[best] + c[best])
+        variance = 1.0 / (1.0 / v[best] + c[best])
+        k, onset = int(self._state[best]), float(self._onset[best])
+        state = self.states[k]
+        before = float(bank.estimate()[0][state.index])
+        bank.accommodate(best, jump, variance)
+        self._keep(self._state != k, bank)
+        assert state.rest is not None
+        bank.condition(state.index, state.rest)
+        self._at_rest[k] = True
+        self._report(state, onset, before)
+        reason = f"back to rest {state.rest:g} at {onset:.1f} s (return test, was {before:+.4g})"
+        ratio = float(statistic[best])
+        return FaultEvent(t, state.name, ratio, self.return_threshold, JUMP, reason)
+
     def rest(self, t: float, bank: FilterBank, name: str) -> FaultEvent | None:
         """The plugin reports state ``name`` physically back at rest (a wheel standing still
         does not slip): if a jump had taken it away, restart it there at its prior σ."""
@@ -246,4 +344,5 @@ class JumpDetector:
     def _keep(self, keep: NDArray[np.bool_], bank: FilterBank) -> None:
         bank.keep_signatures(keep)
         self._state, self._onset = self._state[keep], self._onset[keep]
+        self._held, self._held_variance = self._held[keep], self._held_variance[keep]
         self._d, self._c, self._n = self._d[keep], self._c[keep], self._n[keep]
