@@ -1,15 +1,18 @@
 """Fault-injection helpers shared by the tests: a clean/faulty pair of recordings, the
-maximum horizontal error of a run (``horizontal_max`` of :func:`fusion.metrics.compute_metrics`)
-and a configuration with the UWB plugin's NLOS test off.
+maximum horizontal error of a run (``horizontal_max`` of :func:`fusion.metrics.compute_metrics`),
+its RMS(ε/σ) east and north, and a configuration with the UWB plugin's NLOS test off.
 """
 
 from __future__ import annotations
 
 from pathlib import Path
 
+import numpy as np
+from numpy.typing import NDArray
+
 from fusion.config import FusionConfig, parse_config
 from fusion.engine import RunResult
-from fusion.metrics import compute_metrics
+from fusion.metrics import compute_metrics, interpolate_truth
 from fusion.recording import Recording, read_recording
 from fusion.sim.simulate import simulate
 
@@ -35,6 +38,15 @@ def max_horizontal(result: RunResult, rec: Recording) -> float:
     """Largest horizontal position error of ``result`` against ``rec``'s truth (m)."""
     assert rec.truth is not None
     return float(compute_metrics(result.solution, rec.truth)["horizontal_max"])
+
+
+def normalized_rms(result: RunResult, rec: Recording) -> NDArray[np.float64]:
+    """RMS(ε/σ) of ``result``'s east and north positions against ``rec``'s truth."""
+    assert rec.truth is not None
+    inside, position, *_ = interpolate_truth(rec.truth, result.solution.t)
+    error = result.solution.position[inside, :2] - position[:, :2]
+    ratio = error / result.solution.sigma_position[inside, :2]
+    return np.asarray(np.sqrt(np.mean(ratio**2, axis=0)))
 
 
 def without_nlos_test(config: FusionConfig) -> FusionConfig:
