@@ -229,7 +229,7 @@ BOUND_RELEASE = 0.9
 new ``faults.csv`` row."""
 HOLD_CONDITION = 1e-9
 """det(HᵀH) over a block, relative to trace(HᵀH)³, above which rows ``H`` fix the block in
-all three axes (:class:`HoldMemory`); round-off leaves ≈ 10⁻¹⁶ in a rank-deficient block."""
+all three axes (:func:`_holds`); round-off leaves ≈ 10⁻¹⁶ in a rank-deficient block."""
 
 
 def _rows_velocity(
@@ -240,40 +240,19 @@ def _rows_velocity(
     return ctx.velocity if velocity_at is None else velocity_at
 
 
-HOLD_MEMORY_S = 1.0
-"""Time constant (s) over which a plugin's accepted rows are pooled to decide whether it holds
-the SINS (:class:`HoldMemory`)."""
-
-
-class HoldMemory:
-    """Whether each plugin's recent accepted updates determine the velocity or the position in
-    all three axes (an odometer with its constraint rows, a zero velocity, a position fix, UWB
-    ranges to three anchors in turn): the updates that keep a SINS from drifting off.
-
-    Per plugin and block, the Gram matrix ``Σ HᵀH`` of its accepted rows' columns, each earlier
-    row weighted by ``exp(−age / HOLD_MEMORY_S)``; the block is fixed when ``det > HOLD_CONDITION
-    · trace³``. Judged per update instead, a UWB system that polls one anchor at a time never
-    held the SINS, and an isolated odometer that skidded was kept in the fusion as the last
-    holder while the UWB ranges fixed the position (docs/design/2026-11-29-slip-ends-and-skids.md).
-    """
-
-    def __init__(self, plugins: int) -> None:
-        self._gram = np.zeros((plugins, 2, 3, 3))
-        self._t = np.full(plugins, -np.inf)
-
-    def holds(self, plugin: int, t: float, h: NDArray[np.float64], layout: StateLayout) -> bool:
-        """Add an accepted update's rows ``h`` of ``plugin`` at ``t``; whether the plugin holds."""
-        gram = self._gram[plugin]
-        gram *= math.exp(-(t - self._t[plugin]) / HOLD_MEMORY_S)
-        self._t[plugin] = t
-        for k, block in enumerate((VELOCITY, POSITION)):
-            columns = h[:, layout.slice(block)]
-            gram[k] += columns.T @ columns
-        for block_gram in gram:
-            scale = np.trace(block_gram)
-            if scale > 0.0 and np.linalg.det(block_gram) > HOLD_CONDITION * scale**3:
-                return True
+def _holds(h: NDArray[np.float64], layout: StateLayout) -> bool:
+    """Whether measurement rows ``h`` determine the velocity or the position in all three
+    axes (an odometer with its constraint rows, a zero velocity, a position fix): the
+    updates that keep a SINS from drifting off."""
+    if h.shape[0] < 3:
         return False
+    for block in (VELOCITY, POSITION):
+        columns = h[:, layout.slice(block)]
+        gram = columns.T @ columns
+        scale = np.trace(gram)
+        if scale > 0.0 and np.linalg.det(gram) > HOLD_CONDITION * scale**3:
+            return True
+    return False
 
 
 @dataclass
@@ -419,7 +398,6 @@ class Engine:
         self._at_bound = {}
         self._watched = any(lock is not None for lock in self._locks)  # else _alone is unasked
         self._needs_holds = self._watched or cfg.architecture == "federated"  # FederatedFilter
-        self._held = HoldMemory(len(self.plugins))
         states = jump_states(self.layout)
         jumps = (
             JumpDetector(self.layout, states, cfg.jump_detection, self._tell_owner)
@@ -864,7 +842,7 @@ class Engine:
             self._analysis.update(res.gain, m.H, m.R, velocity, ctx.velocity, ctx.position_enu)
         if res.accepted:
             self._hold_bounds(kf, layout, t, bank)
-        holds = res.accepted and self._needs_holds and self._held.holds(src, t, m.H, layout)
+        holds = res.accepted and self._needs_holds and _holds(m.H, layout)
         if not m.withheld:  # the plugin's own test has dealt with it: not the monitor's
             bank.record(src, t, res, m.suspect, holds)
         if holds:
@@ -959,7 +937,7 @@ class Engine:
 
     def _alone(self, src: int, t: float) -> bool:
         """Whether no other plugin had an update accepted within the lock window before ``t``
-        that holds the filter (:class:`HoldMemory`): only then is a plugin whose updates are all
+        that holds the filter (:func:`_holds`): only then is a plugin whose updates are all
         rejected taken to show a filter that lost its way (one that other sensors still hold
         is the suspect itself: a burst of NLOS on every anchor, which re-acquiring from would
         have moved the SINS by the NLOS bias). A motion constraint or a ZARU does not hold it:

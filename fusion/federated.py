@@ -361,9 +361,8 @@ class FederatedFilter:
         self, plugin: int, t: float, result: UpdateResult, suspect: bool, holds: bool = False
     ) -> None:
         """Feed the local's fault monitor; note isolation and re-admission events. ``holds``:
-        the update was accepted and, with the plugin's recent ones, determines the velocity or
-        the position (:class:`~fusion.engine.HoldMemory`), which keeps the local a holder
-        (:meth:`_members`) for a χ² window."""
+        the update was accepted and determines the velocity or the position (the engine's
+        ``_holds``), which keeps the local a holder (:meth:`_members`) for a χ² window."""
         self._fused = None  # the local has just been updated
         self._now = t
         f = self.locals[self._local_of_plugin[plugin]]

@@ -10,7 +10,7 @@ import pytest
 
 from fusion.attitude import dcm_from_euler
 from fusion.config import load_config
-from fusion.engine import HOLD_MEMORY_S, Engine, HoldMemory
+from fusion.engine import Engine, _holds
 from fusion.error_model import GYRO_BIAS, POSITION, VELOCITY
 from fusion.kalman import KalmanFilter
 from fusion.lock import (
@@ -47,8 +47,7 @@ def test_only_updates_that_fix_velocity_or_position_hold_the_filter() -> None:
     motion constraint (two velocity rows) with a ZARU does not, since the SINS drifts along
     the track under it (sins_uwb never re-acquired at the far face end: 34 km off for an hour
     on a random world); an odometer with its constraint rows, a zero velocity and a position
-    fix do, and so do ranges to three anchors in turn within the memory (a UWB system that
-    polls one anchor at a time), but not ranges that came too long apart."""
+    fix do."""
     layout = layout_with(())
     v, p, bg = (layout.slice(b) for b in (VELOCITY, POSITION, GYRO_BIAS))
     constraint_and_zaru = np.zeros((5, layout.dim))
@@ -61,20 +60,8 @@ def test_only_updates_that_fix_velocity_or_position_hold_the_filter() -> None:
     fix[:, p] = np.eye(3)
     one_range = np.zeros((1, layout.dim))
     one_range[0, p] = [0.6, 0.8, 0.0]
-
-    def holds(h: np.ndarray) -> bool:
-        return HoldMemory(1).holds(0, 0.0, h, layout)
-
-    assert not holds(constraint_and_zaru) and not holds(one_range)
-    assert holds(odometer) and holds(fix)
-    ranges = np.zeros((3, layout.dim))
-    ranges[:, p] = [[0.6, 0.8, 0.0], [-0.6, 0.8, 0.0], [0.0, 0.6, 0.8]]
-    for spacing, held in ((0.05, True), (10.0 * HOLD_MEMORY_S, False)):
-        memory = HoldMemory(1)
-        verdicts = [
-            memory.holds(0, k * spacing, row[None, :], layout) for k, row in enumerate(ranges)
-        ]
-        assert verdicts == [False, False, held]
+    assert not _holds(constraint_and_zaru, layout) and not _holds(one_range, layout)
+    assert _holds(odometer, layout) and _holds(fix, layout)
 
 
 def test_sins_uwb_reacquires_after_an_outage(tmp_path: Path) -> None:

@@ -60,7 +60,9 @@ measurement reports s at rest, and a slip still held is restarted at zero
 (:meth:`fusion.jumps.JumpDetector.rest`). A slipping wheel turns more than the machine
 travels, so s leaves rest upwards only: the end of a slip whose onset went unnoticed (at a
 crawl the step is within the encoder noise) is not taken for a negative slip. A locked,
-skidding wheel (under-reading) is left to the fault monitor.
+skidding wheel (under-reading) is left to the fault monitor: in the federated filter the jump
+detector's hypothesis against the slip's direction names the odometer's local, which is
+isolated instead of the sensors that disagree with it (:class:`fusion.federated.FederatedFilter`).
 
 Zero angular rate at standstill (option ``zero_angular_rate``, mode ``odometer``): while every
 odometer reading of the past ``rest_guard_s`` is a still one the machine stands, and the
