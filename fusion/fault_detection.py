@@ -75,8 +75,8 @@ isolated only once it has failed on ``confirm_updates`` consecutive updates: a j
 takes in within that time explains the failure (the windows are then forgotten) and the local
 stays in the fusion, aiding with the jump estimated, rather than leaving the SINS to coast.
 A local whose failure a jump of another local's state explains is
-not isolated at all (:class:`fusion.federated.FederatedFilter`, the ``excused`` argument of
-:meth:`FaultMonitor.observe`). An isolated local is *re-admitted* once it has passed the test
+not isolated at all (:class:`fusion.federated.FederatedFilter` refuses the isolation:
+:meth:`FaultMonitor.excuse`). An isolated local is *re-admitted* once it has passed the test
 without interruption for ``hold_s`` seconds. Every transition is a :class:`FaultEvent` (written to
 ``faults.csv``).
 """
@@ -85,7 +85,6 @@ from __future__ import annotations
 
 import math
 from collections import deque
-from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -249,12 +248,9 @@ class FaultMonitor:
         suspect: bool,
         source: str = "",
         whitened: NDArray[np.float64] | None = None,
-        excused: Callable[[], bool] | None = None,
     ) -> FaultEvent | None:
         """Add one update of plugin ``source`` (its NIS and, for the mean test, its whitened
-        innovation); return the event if the local changes state. ``excused``, asked when the
-        local would be isolated: whether something else explains the failure (it then counts as
-        failing, but the local stays in)."""
+        innovation); return the event if the local changes state."""
         opts = self.options
         if not opts.enabled:
             return None
@@ -283,8 +279,6 @@ class FaultMonitor:
             self._clean_since = None
             self._failing += 1
             if not self.isolated and self._failing > self.confirm_updates:
-                if excused is not None and excused():
-                    return None
                 self.isolated = True
                 if flagged:
                     reason = "plugin indicator"
@@ -307,6 +301,11 @@ class FaultMonitor:
         """Refuse a re-admission just reported: the local stays isolated and its hold restarts."""
         self.isolated = True
         self._clean_since = t
+
+    def excuse(self) -> None:
+        """Refuse an isolation just reported: something else explains the failure, which still
+        counts as one, and the local stays in."""
+        self.isolated = False
 
     def isolate(self, t: float, statistic: float, threshold: float, reason: str) -> FaultEvent:
         """Isolate the local for a fault found elsewhere (a jump against its state's direction)."""

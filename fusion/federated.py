@@ -369,11 +369,11 @@ class FederatedFilter:
         if holds:
             f.last_held = t
         source = self._plugin_names[plugin]
-        excused = functools.partial(self._excused, f, t)
-        event = f.monitor.observe(
-            t, result.nis, result.dof, suspect, source, result.whitened, excused
-        )
-        if event is not None and event.action == READMIT and self._blamed(f):
+        event = f.monitor.observe(t, result.nis, result.dof, suspect, source, result.whitened)
+        if event is not None and event.action == ISOLATE and self._excused(f, t):
+            f.monitor.excuse()
+            event = None
+        elif event is not None and event.action == READMIT and self._blamed(f):
             f.monitor.keep_isolated(t)
             event = None
         if event is not None:
@@ -382,10 +382,13 @@ class FederatedFilter:
             self.faults.append(event)
             f.reinitialize = event.action == READMIT
 
+    def _explanation(self) -> Explanation | None:
+        return self.explain() if self.explain is not None else None
+
     def _blamed(self, f: LocalFilter) -> bool:
         """Whether a jump against the direction of one of local ``f``'s states is still under
         way (its sensor is still at fault: no re-admission)."""
-        explanation = self.explain() if self.explain is not None else None
+        explanation = self._explanation()
         return (
             explanation is not None
             and not explanation.allowed
@@ -396,7 +399,7 @@ class FederatedFilter:
         """Whether a jump of another local's state explains local ``f``'s failure: a jump the
         detector may take in (``f`` waits for its decision), or one against a one-way state's
         direction (a wheel that under-reads: its owner is isolated instead of ``f``)."""
-        explanation = self.explain() if self.explain is not None else None
+        explanation = self._explanation()
         if explanation is None:
             return False
         owner = next(g for g in self.locals if explanation.state.block in g.layout)
