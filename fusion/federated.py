@@ -85,9 +85,9 @@ A local whose failure a jump of another local's state explains (the jump detecto
 :meth:`~fusion.jumps.JumpDetector.explanation`) is not isolated for it: a slipping wheel drags
 the master, and the UWB ranges that disagree with the master are the sensor in the right. If
 the detector may take the jump in, the local waits for its decision; if the jump runs against
-a one-way state's direction (a wheel that under-reads cannot be slipping: it skids, or the
-encoder loses counts), the state's owner is isolated instead, and it is not re-admitted while
-that hypothesis stands (docs/design/2026-11-29-slip-ends-and-skids.md).
+a one-way state's direction (an under-reading wheel where the odometer's slips may only read
+long, ``slip_sign: positive``), the state's owner is isolated instead, and it is not
+re-admitted while that hypothesis stands (docs/design/2026-11-29-slip-ends-and-skids.md).
 """
 
 from __future__ import annotations

@@ -7,12 +7,14 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from numpy.typing import NDArray
 
-from fusion.config import JumpDetectionOptions, load_config
-from fusion.engine import Engine
+from fusion.config import JumpDetectionOptions, load_config, parse_config
+from fusion.engine import Engine, RunResult
 from fusion.error_model import StateBlock, StateLayout
 from fusion.filter_bank import CentralizedFilter
 from fusion.jumps import JUMP, JumpDetector, jump_states
+from fusion.recording import Recording
 from tests.fault_support import clean_and_faulty, max_horizontal, normalized_rms
 
 CONFIGS = Path(__file__).resolve().parents[1] / "configs"
@@ -238,20 +240,65 @@ def test_full_afkf_takes_in_a_slip(tmp_path: Path) -> None:
 SKID = "faults=[{kind: odometer_slip, t_start: 340, t_end: 355, slip_ratio: -0.3}]"
 
 
-def test_full_afkf_isolates_a_skidding_odometer_not_the_uwb(tmp_path: Path) -> None:
-    """The same place, the wheel reading 30 % short for 15 s (a skid: a slip state leaves rest
-    upwards only, so the jump is not taken in). The UWB ranges disagree with the master the
-    odometer drags; the jump detector's hypothesis against the slip state's direction names
-    the odometer, whose local is isolated within 5 s instead of the UWB's; the UWB local is not
-    isolated while the wheel skids, and if the few centimetres the skid pulled before that
-    (at a σ of 8 mm) isolate it afterwards, it is re-admitted. The maximum horizontal error
-    stays within 1.5× the run's without the skid (measured: equal) and the RMS(ε/σ) of either
-    axis within 1.4× (measured: east 1.26 against 0.97, the skid's pull before the isolation).
-    (Before, the UWB local was isolated 4 s into the skid and never re-admitted: 0.25 m at 7σ
-    to the end.)"""
-    clean, skidding = clean_and_faulty(tmp_path, SKID, uwb_rate_hz=20.0)
+@pytest.fixture(scope="module")
+def skid(tmp_path_factory: pytest.TempPathFactory) -> tuple[Recording, Recording, RunResult]:
+    """The place of the slip above, the wheel reading 30 % short for 15 s (a skid, or an
+    encoder losing counts): the clean recording, the skidding one, and full_afkf's run on the
+    clean one."""
+    clean, skidding = clean_and_faulty(tmp_path_factory.mktemp("skid"), SKID, uwb_rate_hz=20.0)
+    return clean, skidding, Engine(load_config(CONFIGS / "full_afkf.yaml"), clean).run()
+
+
+def _compare_with_clean(
+    skid: tuple[Recording, Recording, RunResult], result: RunResult
+) -> tuple[float, float, NDArray[np.float64], NDArray[np.float64]]:
+    """Maximum horizontal error and RMS(ε/σ) east/north of ``result`` on the skidding
+    recording and of the clean run."""
+    clean, skidding, reference = skid
+    nominal, skidded = max_horizontal(reference, clean), max_horizontal(result, skidding)
+    z_nominal, z_skidded = normalized_rms(reference, clean), normalized_rms(result, skidding)
+    print(
+        f"max horizontal: {skidded:.3f} m with the skid, {nominal:.3f} m without;"
+        f" RMS(ε/σ) E/N {z_skidded} against {z_nominal}"
+    )
+    return skidded, nominal, z_skidded, z_nominal
+
+
+def test_full_afkf_takes_in_a_skid(skid: tuple[Recording, Recording, RunResult]) -> None:
+    """With the shipped ``slip_sign: any`` the skid is a jump of the slip state downwards,
+    taken in like a slip: a jump reported within five seconds of the onset and the jump back
+    to rest after the end, nothing isolated, and the maximum horizontal error within 1.3× the
+    clean run's, RMS(ε/σ) within 1.15× (measured: equal, 0.074 m; RMS(ε/σ) 0.98 / 0.79 against
+    0.97 / 0.79)."""
     config = load_config(CONFIGS / "full_afkf.yaml")
-    result = Engine(config, skidding).run()
+    result = Engine(config, skid[1]).run()
+    events = [(e.action, round(e.t, 1), e.reason) for e in result.faults]
+    print(events)
+    assert [a for a, _, _ in events] == [JUMP, JUMP], events
+    assert 340.0 <= events[0][1] <= 345.0 and "jumped by -" in events[0][2]
+    assert 355.0 <= events[1][1] <= 355.0 + config.filter.jump_detection.window_s
+    assert "back to rest" in events[1][2]
+    skidded, nominal, z_skidded, z_nominal = _compare_with_clean(skid, result)
+    assert skidded <= 1.3 * nominal
+    assert np.all(z_skidded <= 1.15 * z_nominal)
+
+
+def test_full_afkf_with_positive_slips_isolates_a_skidding_odometer_not_the_uwb(
+    skid: tuple[Recording, Recording, RunResult],
+) -> None:
+    """With ``slip_sign: positive`` the slip state leaves rest upwards only, so the skid is not
+    taken in. The UWB ranges disagree with the master the odometer drags; the jump detector's
+    hypothesis against the slip state's direction names the odometer, whose local is isolated
+    within 5 s instead of the UWB's; the UWB local is not isolated while the wheel skids, and
+    if the few centimetres the skid pulled before that (at a σ of 8 mm) isolate it afterwards,
+    it is re-admitted. The maximum horizontal error stays within 1.5× the run's without the
+    skid (measured: equal) and the RMS(ε/σ) of either axis within 1.4× (measured: east 1.26
+    against 0.97, the skid's pull before the isolation). (Before, the UWB local was isolated 4 s
+    into the skid and never re-admitted: 0.25 m at 7σ to the end.)"""
+    data = load_config(CONFIGS / "full_afkf.yaml").model_dump()
+    data["plugins"][0]["slip_sign"] = "positive"
+    config = parse_config(data)
+    result = Engine(config, skid[1]).run()
     events = [(e.action, e.local, round(e.t, 1), e.reason) for e in result.faults]
     print(events)
     first = events[0]
@@ -259,12 +306,6 @@ def test_full_afkf_isolates_a_skidding_odometer_not_the_uwb(tmp_path: Path) -> N
     assert not [e for e in events if e[1] == "uwb" and e[0] == "isolate" and e[2] <= 355.0]
     uwb = [action for action, local, _, _ in events if local == "uwb"]
     assert uwb in ([], ["isolate", "readmit"]), events
-    reference = Engine(config, clean).run()
-    nominal, skidded = max_horizontal(reference, clean), max_horizontal(result, skidding)
-    z_nominal, z_skidded = normalized_rms(reference, clean), normalized_rms(result, skidding)
-    print(
-        f"max horizontal: {skidded:.3f} m with the skid, {nominal:.3f} m without;"
-        f" RMS(ε/σ) E/N {z_skidded} against {z_nominal}"
-    )
+    skidded, nominal, z_skidded, z_nominal = _compare_with_clean(skid, result)
     assert skidded <= 1.5 * nominal
     assert np.all(z_skidded <= 1.4 * z_nominal)

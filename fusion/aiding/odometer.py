@@ -57,12 +57,18 @@ grip returning is the jump back to s = 0 (the state's rest), where s is then set
 slip does not leave its estimation error in δk_D. A standstill (every reading of the past
 ``rest_guard_s`` a still one, :func:`still_readings`) ends a slip episode for certain: the
 measurement reports s at rest, and a slip still held is restarted at zero
-(:meth:`fusion.jumps.JumpDetector.rest`). A slipping wheel turns more than the machine
-travels, so s leaves rest upwards only: the end of a slip whose onset went unnoticed (at a
-crawl the step is within the encoder noise) is not taken for a negative slip. A locked,
-skidding wheel (under-reading) is left to the fault monitor: in the federated filter the jump
-detector's hypothesis against the slip's direction names the odometer's local, which is
-isolated instead of the sensors that disagree with it (:class:`fusion.federated.FederatedFilter`).
+(:meth:`fusion.jumps.JumpDetector.rest`).
+
+By default (``slip_sign: any``) s leaves rest either way: a driven wheel that spins reads long,
+and one that skids, slides locked or loses encoder counts reads short, and either is taken in.
+With ``slip_sign: positive`` (a wheel that can only read long) s leaves rest upwards only, so
+that the end of a slip whose onset went unnoticed (at a crawl the step is within the encoder
+noise) is not taken for a negative slip. An under-reading wheel is then left to the fault
+monitor: in the federated filter the jump detector's hypothesis against the slip's direction
+names the odometer's local, which is isolated instead of the sensors that disagree with it
+(:class:`fusion.federated.FederatedFilter`), and which stays in the fusion where it is the last
+source holding the SINS. The one-way state suits a filter in which only the IMU sees a slip's
+onset (docs/design/2026-11-30-skids-taken-in.md).
 
 Zero angular rate at standstill (option ``zero_angular_rate``, mode ``odometer``): while every
 odometer reading of the past ``rest_guard_s`` is a still one the machine stands, and the
@@ -163,6 +169,12 @@ class OdometerOptions(PluginOptions):
         False,
         description="own a slip-ratio state whose jumps (a wheel starting and stopping to slip)"
         " are detected, estimated and taken in (fusion.jumps; options filter.jump_detection)",
+    )
+    slip_sign: Literal["any", "positive"] = Field(
+        "any",
+        description="with slip_detection: the signs a slip may take from rest. any: a wheel"
+        " reading long (spinning) or short (skidding, lost counts); positive: long only, an"
+        " under-reading wheel is left to the fault monitor",
     )
     constraint_rate_hz: float = Field(10.0, gt=0, description="motion_constraint mode only")
     max_speed_mps: float | None = Field(
@@ -332,7 +344,7 @@ class Odometer(Plugin):
                     (SLIP_PRIOR_SIGMA,),
                     may_jump=True,
                     rest=0.0,
-                    leaves_rest=1,
+                    leaves_rest=1 if self.options.slip_sign == "positive" else 0,
                     bound=SLIP_BOUND,
                     unit="pct",
                 )
