@@ -30,6 +30,7 @@ from typing import Any
 
 import yaml
 
+from benchmarks.consistency import consistency_tables, consistency_tasks
 from benchmarks.faults import FAULT_KINDS
 from benchmarks.robustness import (
     federated_tables,
@@ -644,6 +645,13 @@ SUITES: dict[str, Suite] = {
             robustness_tasks,
             robustness_tables,
             preamble=ranges_preamble,
+        ),
+        Suite(
+            "consistency",
+            "σ against the error on the presets (longwall-200m, seed002-rectangle)",
+            20,
+            consistency_tasks,
+            consistency_tables,
         ),
         Suite(
             "robustness-federated",

@@ -9,6 +9,7 @@ from typing import Any
 import numpy as np
 import pytest
 
+from benchmarks.consistency import CONSISTENCY_WORLDS
 from benchmarks.robustness import (
     SMOKE_CONFIGS,
     execute,
@@ -101,6 +102,23 @@ def test_suites_are_registered_with_their_ranges() -> None:
     assert [t.name for t in smoke_tables()] == ["robustness"]
     text = ranges_preamble()
     assert "`face_length_m` | 60 – 300" in text and "`sins_uwb`" in text
+
+
+def test_the_consistency_suite_runs_each_preset_s_configurations_and_scores_the_yaw() -> None:
+    suite = SUITES["consistency"]
+    assert suite.in_results and suite.default_runs >= 20
+    tasks = suite.tasks(2, ("duration_s=30",))
+    by_preset = {t.scenario: [m.config for m in t.methods] for t in tasks}
+    assert set(by_preset) == set(CONSISTENCY_WORLDS)
+    assert "sins_uwb" in by_preset["longwall-200m"]
+    assert "sins_uwb" not in by_preset["seed002-rectangle"]
+    lw200 = next(t for t in tasks if t.scenario == "longwall-200m")
+    assert lw200.scenario_overrides[-1] == "duration_s=30"  # the command line's --set wins
+    tables = suite.tables()
+    assert [len(t.rows) for t in tables] == [len(c) for c, _ in CONSISTENCY_WORLDS.values()]
+    task = next(t for t in tasks if t.scenario == "seed002-rectangle" and t.seed == 0)
+    rows = [r for r in execute(task).rows if r["method"] == "sins_mc_zupt"]
+    assert rows and rows[0]["failed"] == 0.0 and rows[0]["nz_yaw_count"] > 0
 
 
 SMOKE_WORLDS = 12
