@@ -14,8 +14,9 @@ there.
 
 from __future__ import annotations
 
+from benchmarks.robustness import ACCURACY_COLUMNS, SIGMA_COLUMNS
 from benchmarks.runner import Method, Task
-from benchmarks.tables import Column, RowSpec, TableSpec
+from benchmarks.tables import RowSpec, TableSpec
 
 CONSISTENCY_WORLDS: dict[str, tuple[tuple[str, ...], tuple[str, ...]]] = {
     "longwall-200m": (
@@ -61,14 +62,7 @@ def consistency_tables() -> list[TableSpec]:
             name=f"consistency_{preset.replace('-', '_')}",
             title=f"Consistency on {preset}",
             rows=tuple(RowSpec(c, preset, c) for c in configs),
-            columns=(
-                Column("failed", "failed runs", 0, agg="sum"),
-                Column("horizontal_rms", "h. RMS median (m)", 2, agg="median"),
-                Column("horizontal_rms", "h. RMS worst (m)", 2, agg="max"),
-                Column("nz_e", "RMS(ε/σ) E", 2, agg="pooled_rms"),
-                Column("nz_n", "RMS(ε/σ) N", 2, agg="pooled_rms"),
-                Column("nz_yaw", "RMS(ε/σ) yaw", 2, agg="pooled_rms"),
-            ),
+            columns=(*ACCURACY_COLUMNS, *SIGMA_COLUMNS),
             headline="horizontal_rms",
             note="n = seeds run; RMS(ε/σ) pooled over every epoch of every seed (yaw: forward,"
             " against the σ of the state history); issue 29 asks each in [0.6, 1.5]",
