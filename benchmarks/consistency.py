@@ -29,7 +29,7 @@ CONSISTENCY_WORLDS: dict[str, tuple[tuple[str, ...], tuple[str, ...]]] = {
             "full_ckf",
             "full_afkf",
         ),
-        ("duration_s=900.0",),  # a cutting pass and a half: both face ends, the UWB anchors
+        ("duration_s=900.0",),  # as docs/design/2026-11-29-reported-covariance.md measured it
     ),
     "seed002-rectangle": (("sins_mc", "sins_zupt", "sins_mc_zupt"), ()),
 }
