@@ -221,8 +221,12 @@ one range, a filter's drift moves the innovation by millimetres between two rang
 NLOS_STEP_GAP_S = 1.0
 """The anchor's previous range counts for the step only this recently (otherwise a lengthening
 of 0 is taken: a range met after a gap that reads ``NLOS_STEP`` σ long starts NLOS as well)."""
+NLOS_SMALLEST_BIAS_M = 0.3
+"""The smallest NLOS bias the test is for (m): a blocked line of sight lengthens a range by
+decimetres to metres."""
 NLOS_DRIFT = 0.5
-"""Reference value k (σ) of the CUSUM that ends an anchor's NLOS."""
+"""Least reference value k (σ) of the CUSUM that ends an anchor's NLOS; k is half the smallest
+bias, ``NLOS_SMALLEST_BIAS_M / 2`` in metres, where that is more σ (Page's k = δ/2)."""
 NLOS_CAP = 20.0
 """Where that CUSUM starts (σ): it falls to zero, and the NLOS ends, after some ``NLOS_CAP / k``
 (40) ranges that fit, fewer if they read short; ranges that keep reading long hold it up."""
@@ -560,9 +564,12 @@ class UwbRanges(Plugin):
         withheld as NLOS. Its whitened lengthening ``w = (ρ − r̂)/√s`` starts the anchor's NLOS
         by a step of :data:`NLOS_STEP` over the anchor's previous range; Page's one-sided
         CUSUM ``g ← min(cap, max(0, g + w − k))``, started at the cap, then ends it at zero
-        (:data:`NLOS_DRIFT`, :data:`NLOS_CAP`). A step, because a drifting filter moves the
-        innovation smoothly; a CUSUM, because the filter's σ grows while the anchor is
-        withheld, and single NLOS ranges then read long by only a few σ."""
+        (:data:`NLOS_CAP`). A step, because a drifting filter moves the innovation smoothly; a
+        CUSUM, because the filter's σ grows while the anchor is withheld, and single NLOS ranges
+        then read long by only a few σ. Its reference k is half the smallest NLOS bias,
+        ``max(NLOS_DRIFT, NLOS_SMALLEST_BIAS_M / (2√s))``: a filter a few centimetres off
+        lengthens every range by a σ or two where σ is centimetres, and with k fixed at half a
+        σ its anchors never left NLOS (docs/design/2026-11-30-skids-taken-in.md)."""
         if not self.options.nlos_test:
             return False
         t = float(self.data.t[index])
@@ -572,7 +579,8 @@ class UwbRanges(Plugin):
         self.lengthening[k], self.t_lengthening[k] = w, t
         g = float(self.reads_long[k])  # > 0: the anchor is in NLOS
         if g > 0.0:
-            self.reads_long[k] = min(NLOS_CAP, max(0.0, g + w - NLOS_DRIFT))
+            drift = max(NLOS_DRIFT, NLOS_SMALLEST_BIAS_M / (2.0 * math.sqrt(s)))
+            self.reads_long[k] = min(NLOS_CAP, max(0.0, g + w - drift))
         elif w >= NLOS_STEP and step >= NLOS_STEP:
             self.reads_long[k] = NLOS_CAP
         return bool(self.reads_long[k] > 0.0)
