@@ -573,13 +573,14 @@ class UwbRanges(Plugin):
         if not self.options.nlos_test:
             return False
         t = float(self.data.t[index])
-        w = -innovation / math.sqrt(s)
+        root = math.sqrt(s)
+        w = -innovation / root
         recent = t - self.t_lengthening[k] <= NLOS_STEP_GAP_S
         step = w - (float(self.lengthening[k]) if recent else 0.0)
         self.lengthening[k], self.t_lengthening[k] = w, t
         g = float(self.reads_long[k])  # > 0: the anchor is in NLOS
         if g > 0.0:
-            drift = max(NLOS_DRIFT, NLOS_SMALLEST_BIAS_M / (2.0 * math.sqrt(s)))
+            drift = max(NLOS_DRIFT, NLOS_SMALLEST_BIAS_M / (2.0 * root))
             self.reads_long[k] = min(NLOS_CAP, max(0.0, g + w - drift))
         elif w >= NLOS_STEP and step >= NLOS_STEP:
             self.reads_long[k] = NLOS_CAP
