@@ -380,6 +380,12 @@ class PluginBlock(BaseModel):
     type: str
     name: str | None = None
     enabled: bool = True
+    required: bool = Field(
+        False,
+        description="a recording without this plugin's stream (its file or meta.yaml section)"
+        " is an error; false: the run goes on without the plugin, with a warning, and says so"
+        " in run.json, the summary and metrics.json",
+    )
     gate_probability: float | None = _within(
         None,
         0,

@@ -26,6 +26,7 @@ from fusion.attitude import dcm_from_euler, dcm_from_quat
 from fusion.config import DeadReckoningOptions
 from fusion.earth import LocalFrame
 from fusion.error_model import ImuNoise
+from fusion.plugin import MissingStream
 from fusion.recording import Recording
 from fusion.solution import Solution
 from fusion.strapdown import NavState, mechanize
@@ -41,7 +42,9 @@ def dead_reckon(
     """Odometer dead reckoning with the free SINS attitude (see the module docstring)."""
     odo = recording.odometer
     if odo is None:
-        raise ValueError("filter.architecture dead_reckoning needs odometer.csv in the recording")
+        raise MissingStream(
+            f"recording {recording.path}: filter.architecture dead_reckoning needs odometer.csv"
+        )
     data = recording.imu
     gyro = data.gyro - np.deg2rad(np.asarray(options.gyro_bias_deg_h)) / 3600.0
     free = mechanize(data.t, gyro, data.accel, initial, frame=frame)

@@ -13,7 +13,10 @@ bridged IMU gap adds its own process noise at the first step that reaches into i
 Before anything reads the recording, every stream is screened for physical plausibility
 (:mod:`fusion.screening`): the plugins, the SINS and the dead reckoning see only the accepted
 samples, rejected IMU runs are bridged as gaps, and the counts are in
-:attr:`RunResult.screening`.
+:attr:`RunResult.screening`. A plugin whose stream the recording lacks (every aiding file is
+optional in the format) is left out with a warning, unless its block says ``required: true``:
+the run uses the configuration as it stands for this recording (:func:`present_plugins`),
+and :attr:`RunResult.left_out` says what was left out.
 
 The error-state estimates live in a filter bank (:mod:`fusion.filter_bank`): one centralized
 Kalman filter, or the federated master of :mod:`fusion.federated` whose local filters are index
@@ -65,9 +68,11 @@ from fusion.plugin import (
     WIDEN,
     Measurement,
     MeasurementContext,
+    MissingStream,
     Plugin,
     PluginError,
     create_plugin,
+    load_plugin_class,
 )
 from fusion.recording import ImuSpec, Recording, check_recording
 from fusion.rows import RowBuffer
@@ -107,6 +112,9 @@ class RunResult:
     (:func:`fusion.smoother.plausible_correction`): they keep the forward estimate."""
     screening: ScreeningReport = field(default_factory=lambda: ScreeningReport(enabled=False))
     """Implausible samples rejected per stream and rule before the run (fusion.screening)."""
+    left_out: tuple[str, ...] = ()
+    """The configured plugins the run went without, each with why: the recording lacks its
+    stream (:func:`present_plugins`). ``config`` has them disabled."""
     observability: Observability | None = None
     """Share of each state's prior variance the data removed (:mod:`fusion.observability`);
     None for an architecture that estimates nothing (dead reckoning, standalone)."""
@@ -167,6 +175,46 @@ def resolve_imu_noise(tuning: ImuTuning, spec: ImuSpec | None) -> ImuNoise:
         bias_random_walk=tuning.bias_model == "random_walk",
     )
     return noise
+
+
+def present_plugins(
+    config: FusionConfig, recording: Recording
+) -> tuple[list[Plugin], tuple[str, ...], FusionConfig]:
+    """The configuration's enabled plugins on ``recording``, the reasons of those left out and
+    the configuration as it stands for this recording (those left out disabled).
+
+    A plugin whose stream the recording lacks (:class:`fusion.plugin.MissingStream`: every
+    aiding file is optional in the format) is left out with a warning. It is an error
+    instead where its block says ``required: true``, and where every enabled plugin would be
+    left out: nothing of the configured combination is in the recording, which is the wrong
+    recording or the wrong configuration, not a recording with a sensor less.
+    """
+    plugins: list[Plugin] = []
+    left_out: list[str] = []
+    blocks = list(config.plugins)
+    for i, block in enumerate(config.plugins):
+        if not block.enabled:
+            continue
+        try:
+            plugins.append(
+                create_plugin(
+                    block.type, block.instance_name, block.options, recording, ("plugins", i)
+                )
+            )
+        except MissingStream as exc:
+            if block.required:
+                raise
+            left_out.append(str(exc))
+            blocks[i] = block.model_copy(update={"enabled": False})
+    if not left_out:
+        return plugins, (), config
+    if not plugins:
+        raise MissingStream(
+            "\n".join(left_out) + "\nno plugin of the configuration has its stream in the recording"
+        )
+    for reason in left_out:
+        _log.warning("left out: %s", reason)
+    return plugins, tuple(left_out), config.model_copy(update={"plugins": blocks})
 
 
 def _at_most(epochs: NDArray[np.float64], rate: float | None) -> NDArray[np.bool_]:
@@ -290,11 +338,8 @@ class Engine:
         self.recording = replace(screened, imu=bridged) if self.gap_bridges else screened
         meta = recording.meta
         self.frame = LocalFrame(meta.origin.lat_deg, meta.origin.lon_deg, meta.origin.height_m)
-        self.plugins: list[Plugin] = [
-            create_plugin(block.type, block.instance_name, block.options, screened, ("plugins", i))
-            for i, block in enumerate(config.plugins)
-            if block.enabled
-        ]
+        self.plugins, self.left_out, config = present_plugins(config, screened)
+        self.config = config
         self.gates = [b.gate_probability for b in config.plugins if b.enabled]
         self._noise_sources = frozenset(  # plugins with a process_noise of their own
             k
@@ -528,6 +573,7 @@ class Engine:
             smoother_peak_steps=smoother.peak_steps if smoother is not None else 0,
             smoother_rejected=smoother.rejected if smoother is not None else 0,
             screening=self.screening,
+            left_out=self.left_out,
             observability=observed.report(tracked),
             states=recorder.history(solution, self.frame) if recorder is not None else None,
         )
@@ -698,9 +744,19 @@ class Engine:
             )
         reporters = [p for p in self.plugins if p.closes_windows]
         if not reporters:
-            raise ConfigError(
-                "config key smoother.mode: online smoothing needs a plugin that reports"
-                " window ends (face ends), e.g. cpoem; none of the configured plugins does"
+            ends = [b for b in self.config.plugins if load_plugin_class(b.type).closes_windows]
+            if not ends:
+                raise ConfigError(
+                    "config key smoother.mode: online smoothing needs a plugin that reports"
+                    " window ends (face ends), e.g. cpoem; none of the configured plugins does"
+                )
+            _log.warning(
+                "smoother.mode online: %s, which ends its windows, was left out (no stream);"
+                " the whole recording is smoothed as one window instead",
+                ends[0].instance_name,
+            )
+            return WindowedSmoother(
+                bank.smoothing_dim, lambda _: False, opts.memory_budget_mb, to_standard
             )
 
         def due(t: float) -> bool:
@@ -760,6 +816,7 @@ class Engine:
             config=self.config,
             recording_name=self.recording.meta.name,
             screening=self.screening,
+            left_out=self.left_out,
         )
 
     def _context(

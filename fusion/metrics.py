@@ -271,7 +271,8 @@ def compute_metrics(solution: Solution, truth: TruthData) -> dict[str, Any]:
 
 def write_metrics_json(metrics_by_file: dict[str, dict[str, Any]], path: str | Path) -> None:
     """Write ``metrics.json``: ``{"solution.csv": {...}, "smoothed.csv": {...}}`` (``fusion run``
-    adds ``"screening"``: the samples rejected per stream, fusion.screening).
+    adds ``"screening"``: the samples rejected per stream, fusion.screening, and ``"left_out"``:
+    the configured plugins whose stream the recording lacks).
 
     Parameters
     ----------

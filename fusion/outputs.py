@@ -86,6 +86,7 @@ def write_outputs(
             name: compute_metrics(sol, truth) for name, sol in solutions.items()
         }
         metrics["screening"] = result.screening.to_dict()
+        metrics["left_out"] = {"plugins": list(result.left_out)}
         if result.observability is not None:
             metrics["observability"] = result.observability.to_dict()
         write_metrics_json(metrics, files["metrics"])
@@ -189,6 +190,7 @@ def summary(result: RunResult, recording: Recording) -> str:
         f"speed      {result.wall_time_s:.2f} s wall, {result.realtime_factor:.0f}x real time",
         f"final σ    e/n/u {np.array2string(sol.sigma_position[-1], precision=3)} m",
     ]
+    lines += [f"left out   {reason}" for reason in result.left_out]
     lines += [
         f"screened   {entry.describe()}" for entry in result.screening.streams if entry.rejected
     ]

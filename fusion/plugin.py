@@ -349,6 +349,13 @@ class PluginError(ValueError):
     """A plugin cannot be found or its options are invalid."""
 
 
+class MissingStream(PluginError):
+    """The recording lacks a stream the plugin reads: its file, or the meta.yaml section that
+    describes it (``uwb.csv`` and ``uwb.anchors``). The format makes every aiding stream
+    optional; the engine then runs the configuration without the plugin, unless its block
+    says ``required: true`` (:class:`fusion.engine.Engine`)."""
+
+
 _registered_at_run_time: dict[str, type[Plugin]] = {}
 """Plugins named by :func:`register_plugin` in this process, by name."""
 
@@ -450,10 +457,14 @@ def create_plugin(
 ) -> Plugin:
     """Instantiate plugin ``kind`` with ``options``; errors name ``where`` (the config path),
     and a recording the plugin cannot serve (a missing sensor file or meta.yaml section) is a
-    :class:`PluginError` naming the recording."""
+    :class:`PluginError` naming the recording (:class:`MissingStream` for a missing stream)."""
     cls, opts = validated_options(kind, options, where)
     try:
         return cls(name, opts, recording)
+    except MissingStream as exc:
+        raise MissingStream(
+            f"configuration: key {dotted(where)} ({kind}): recording {recording.path}: {exc}"
+        ) from None
     except ValueError as exc:
         raise PluginError(
             f"configuration: key {dotted(where)} ({kind}): recording {recording.path}: {exc}"

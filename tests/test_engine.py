@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 from dataclasses import replace
 from functools import lru_cache
 from pathlib import Path
@@ -169,9 +170,9 @@ def test_cli_run_validate_and_check(tmp_path: Path, capsys: pytest.CaptureFixtur
 def test_cli_names_the_plugin_and_recording_when_a_sensor_is_missing(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    """A configuration whose plugin needs a sensor file the recording lacks: bad input (3) and
-    one line naming the configuration key, the plugin, the recording and the file (no
-    traceback, nothing run without the plugin)."""
+    """A configuration none of whose plugins has its sensor file in the recording: bad input
+    (3) and one line naming the configuration key, the plugin, the recording and the file (no
+    traceback, nothing run)."""
     rec_dir = tmp_path / "rec"
     write_recording(make_recording(5, duration=20.0, fixes=False), rec_dir)
     config = tmp_path / "c.yaml"
@@ -182,6 +183,61 @@ def test_cli_names_the_plugin_and_recording_when_a_sensor_is_missing(
     err = capsys.readouterr().err
     assert "key plugins[0] (uwb)" in err and str(rec_dir) in err and "uwb.csv" in err
     assert not (out / "solution.csv").exists()
+
+
+def test_a_plugin_whose_sensor_is_missing_is_left_out_and_said_so(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """Every aiding file is optional in the format: a configuration with position fixes and
+    UWB runs on a recording without uwb.csv as position fixes alone, and the summary,
+    metrics.json and run.json (the plugin disabled) say what was left out. With
+    ``required: true`` on the UWB block the same recording is bad input."""
+    rec_dir = tmp_path / "rec"
+    write_recording(make_recording(6, duration=30.0), rec_dir)
+    config = tmp_path / "c.yaml"
+    config.write_text("name: pos_uwb\nplugins:\n  - type: position\n  - type: uwb\n")
+    out = tmp_path / "out"
+    code = main(["run", "--config", str(config), "--recording", str(rec_dir), "--out", str(out)])
+    assert code == 0
+    text = capsys.readouterr()
+    assert "left out   configuration: key plugins[1] (uwb)" in text.out
+    assert "uwb.csv" in text.err
+    metrics = json.loads((out / "metrics.json").read_text())
+    assert len(metrics["left_out"]["plugins"]) == 1
+    used = json.loads((out / "run.json").read_text())["config"]["plugins"]
+    assert [(p["type"], p["enabled"]) for p in used] == [("position", True), ("uwb", False)]
+    result = Engine(load_config(config), read_recording(rec_dir)).run()
+    assert list(result.innovations) == ["position"] and len(result.left_out) == 1
+
+    config.write_text(
+        "name: pos_uwb\nplugins:\n  - type: position\n  - {type: uwb, required: true}\n"
+    )
+    out = tmp_path / "out_required"
+    code = main(["run", "--config", str(config), "--recording", str(rec_dir), "--out", str(out)])
+    assert code == EXIT_BAD_INPUT
+    assert "key plugins[1] (uwb)" in capsys.readouterr().err
+    assert not (out / "solution.csv").exists()
+
+
+def test_the_flagship_runs_on_a_face_without_odometer_and_magnetometer(tmp_path: Path) -> None:
+    """``full_afkf_rts`` on a recording with UWB alone among its aiding files: the odometer,
+    the ZUPT (it needs the encoder's stops), CPOEM and the magnetometer are left out, and the
+    online smoother, whose windows CPOEM ended, smooths the whole recording instead."""
+    path = simulate("longwall-random-short", tmp_path / "rec", seed=1, overrides=["duration_s=60"])
+    for name in ("odometer.csv", "magnetometer.csv"):
+        (path / name).unlink()
+    rec = read_recording(path)
+    meta = rec.meta.model_copy(update={"odometer": None, "magnetometer": None})
+    rec = replace(rec, meta=meta, odometer=None, magnetometer=None)
+    result = Engine(load_config(CONFIGS / "full_afkf_rts.yaml"), rec).run()
+    assert list(result.innovations) == ["uwb"]
+    assert [r.split("(")[1].split(")")[0] for r in result.left_out] == [
+        "odometer",
+        "zupt",
+        "cpoem",
+        "magnetometer",
+    ]
+    assert result.smoothed is not None and np.isfinite(result.smoothed.position).all()
 
 
 def test_python_api_accepts_paths_and_mappings(tmp_path: Path) -> None:

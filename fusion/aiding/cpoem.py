@@ -128,7 +128,14 @@ from fusion.encoder import reading_intervals
 from fusion.error_model import ATTITUDE, POSITION
 from fusion.face import FaceLine
 from fusion.kalman import CorrelatedNoise
-from fusion.plugin import Measurement, MeasurementContext, Plugin, PluginOptions, StoredEstimate
+from fusion.plugin import (
+    Measurement,
+    MeasurementContext,
+    MissingStream,
+    Plugin,
+    PluginOptions,
+    StoredEstimate,
+)
 from fusion.recording import Recording
 
 _log = logging.getLogger(__name__)
@@ -221,9 +228,11 @@ class Cpoem(Plugin):
         super().__init__(name, options, recording)
         face = recording.meta.face
         if recording.odometer is None:
-            raise ValueError(f"plugin {name!r} (cpoem) needs odometer.csv (stops at the face ends)")
+            raise MissingStream(
+                f"plugin {name!r} (cpoem) needs odometer.csv (stops at the face ends)"
+            )
         if face is None or face.ends_enu_m is None:
-            raise ValueError(
+            raise MissingStream(
                 f"plugin {name!r} (cpoem) needs meta.yaml face.ends_enu_m (the surveyed face ends)"
             )
         if recording.support is None:

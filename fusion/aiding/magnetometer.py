@@ -103,7 +103,7 @@ from pydantic import Field
 from fusion.attitude import dcm_from_euler, euler_from_dcm, wrap_angle
 from fusion.error_model import ATTITUDE, StateBlock
 from fusion.kalman import chi2_threshold
-from fusion.plugin import Measurement, MeasurementContext, Plugin, PluginOptions
+from fusion.plugin import Measurement, MeasurementContext, MissingStream, Plugin, PluginOptions
 from fusion.recording import Recording
 
 
@@ -215,7 +215,7 @@ class Magnetometer(Plugin):
     def __init__(self, name: str, options: MagnetometerOptions, recording: Recording) -> None:
         super().__init__(name, options, recording)
         if recording.magnetometer is None or recording.meta.magnetometer is None:
-            raise ValueError(
+            raise MissingStream(
                 f"plugin {name!r} needs magnetometer.csv and the magnetometer section of"
                 " meta.yaml in the recording"
             )

@@ -94,7 +94,7 @@ from fusion.aiding.reference_speed import ReferenceSpeed, reading_noise
 from fusion.aiding.zaru import ZeroAngularRate
 from fusion.attitude import dcm_from_euler, skew
 from fusion.error_model import ATTITUDE, KNOWN_SIGMAS, VELOCITY, StateBlock
-from fusion.plugin import Measurement, MeasurementContext, Plugin, PluginOptions
+from fusion.plugin import Measurement, MeasurementContext, MissingStream, Plugin, PluginOptions
 from fusion.recording import Recording
 
 SLIP_PRIOR_SIGMA = 1e-4  # no slip at the start; a jump opens it (fusion.jumps)
@@ -262,7 +262,7 @@ class Odometer(Plugin):
         super().__init__(name, options, recording)
         self.use_speed = options.mode == "odometer"
         if self.use_speed and recording.odometer is None:
-            raise ValueError(
+            raise MissingStream(
                 f"plugin {name!r} (mode odometer) needs odometer.csv; "
                 "use mode: motion_constraint without one"
             )

@@ -18,7 +18,7 @@ from pydantic import Field
 
 from fusion.attitude import skew
 from fusion.error_model import ATTITUDE, POSITION
-from fusion.plugin import Measurement, MeasurementContext, Plugin, PluginOptions
+from fusion.plugin import Measurement, MeasurementContext, MissingStream, Plugin, PluginOptions
 from fusion.recording import Recording
 
 
@@ -37,7 +37,7 @@ class PositionFixes(Plugin):
     def __init__(self, name: str, options: PositionOptions, recording: Recording) -> None:
         super().__init__(name, options, recording)
         if recording.position is None or recording.meta.position is None:
-            raise ValueError(f"plugin {name!r} needs position.csv in the recording")
+            raise MissingStream(f"plugin {name!r} needs position.csv in the recording")
         self.data = recording.position
         self.lever_arm = np.array(recording.meta.position.lever_arm_b_m, dtype=float)
         sigma = self.data.sigma * options.sigma_scale

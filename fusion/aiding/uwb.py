@@ -201,7 +201,7 @@ from fusion.face import FaceLine
 from fusion.innovations import InnovationLog
 from fusion.kalman import chi2_threshold
 from fusion.lock import Reacquisition
-from fusion.plugin import Measurement, MeasurementContext, Plugin, PluginOptions
+from fusion.plugin import Measurement, MeasurementContext, MissingStream, Plugin, PluginOptions
 from fusion.recording import Recording, UwbData, UwbMeta
 from fusion.solution import Solution
 
@@ -321,7 +321,9 @@ class UwbOptions(PluginOptions):
 def _uwb_stream(recording: Recording, who: str) -> tuple[UwbData, UwbMeta]:
     """The recording's ranges and their meta section, or a clear error."""
     if recording.uwb is None or recording.meta.uwb is None:
-        raise ValueError(f"{who} needs uwb.csv and the uwb section of meta.yaml in the recording")
+        raise MissingStream(
+            f"{who} needs uwb.csv and the uwb section of meta.yaml in the recording"
+        )
     return recording.uwb, recording.meta.uwb
 
 

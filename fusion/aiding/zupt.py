@@ -124,7 +124,14 @@ from fusion.aiding.zaru import ZeroAngularRate
 from fusion.earth import OMEGA_IE, normal_gravity
 from fusion.encoder import reading_intervals
 from fusion.error_model import ATTITUDE, GYRO_BIAS, POSITION, VELOCITY, ImuNoise, StateBlock
-from fusion.plugin import Measurement, MeasurementContext, Plugin, PluginOptions, ProcessNoise
+from fusion.plugin import (
+    Measurement,
+    MeasurementContext,
+    MissingStream,
+    Plugin,
+    PluginOptions,
+    ProcessNoise,
+)
 from fusion.recording import ImuSpec, Recording
 
 BIAS_COVERAGE = 0.999
@@ -524,7 +531,7 @@ class Zupt(Plugin):
         included) and all of them below ``speed_mps``."""
         odometer = self.recording.odometer
         if odometer is None:
-            raise ValueError(
+            raise MissingStream(
                 f"plugin {self.name!r}: odometer_rest_mps needs odometer.csv in the recording"
             )
         moving = np.concatenate([[0], np.cumsum(np.abs(odometer.speed) >= speed_mps)])
