@@ -179,9 +179,10 @@ def resolve_imu_noise(tuning: ImuTuning, spec: ImuSpec | None) -> ImuNoise:
 
 def present_plugins(
     config: FusionConfig, recording: Recording
-) -> tuple[list[Plugin], tuple[str, ...], FusionConfig]:
-    """The configuration's enabled plugins on ``recording``, the reasons of those left out and
-    the configuration as it stands for this recording (those left out disabled).
+) -> tuple[list[Plugin], dict[str, str], FusionConfig]:
+    """The configuration's enabled plugins on ``recording``, why each of those left out was
+    (by instance name) and the configuration as it stands for this recording (those left out
+    disabled).
 
     A plugin whose stream the recording lacks (:class:`fusion.plugin.MissingStream`: every
     aiding file is optional in the format) is left out with a warning. It is an error
@@ -190,7 +191,7 @@ def present_plugins(
     recording or the wrong configuration, not a recording with a sensor less.
     """
     plugins: list[Plugin] = []
-    left_out: list[str] = []
+    left_out: dict[str, str] = {}
     blocks = list(config.plugins)
     for i, block in enumerate(config.plugins):
         if not block.enabled:
@@ -204,17 +205,18 @@ def present_plugins(
         except MissingStream as exc:
             if block.required:
                 raise
-            left_out.append(str(exc))
+            left_out[block.instance_name] = str(exc)
             blocks[i] = block.model_copy(update={"enabled": False})
     if not left_out:
-        return plugins, (), config
+        return plugins, {}, config
     if not plugins:
         raise MissingStream(
-            "\n".join(left_out) + "\nno plugin of the configuration has its stream in the recording"
+            "\n".join(left_out.values())
+            + "\nno plugin of the configuration has its stream in the recording"
         )
-    for reason in left_out:
+    for reason in left_out.values():
         _log.warning("left out: %s", reason)
-    return plugins, tuple(left_out), config.model_copy(update={"plugins": blocks})
+    return plugins, left_out, config.model_copy(update={"plugins": blocks})
 
 
 def _at_most(epochs: NDArray[np.float64], rate: float | None) -> NDArray[np.bool_]:
@@ -573,7 +575,7 @@ class Engine:
             smoother_peak_steps=smoother.peak_steps if smoother is not None else 0,
             smoother_rejected=smoother.rejected if smoother is not None else 0,
             screening=self.screening,
-            left_out=self.left_out,
+            left_out=tuple(self.left_out.values()),
             observability=observed.report(tracked),
             states=recorder.history(solution, self.frame) if recorder is not None else None,
         )
@@ -744,7 +746,11 @@ class Engine:
             )
         reporters = [p for p in self.plugins if p.closes_windows]
         if not reporters:
-            ends = [b for b in self.config.plugins if load_plugin_class(b.type).closes_windows]
+            ends = [
+                b
+                for b in self.config.plugins
+                if b.instance_name in self.left_out and load_plugin_class(b.type).closes_windows
+            ]
             if not ends:
                 raise ConfigError(
                     "config key smoother.mode: online smoothing needs a plugin that reports"
@@ -816,7 +822,7 @@ class Engine:
             config=self.config,
             recording_name=self.recording.meta.name,
             screening=self.screening,
-            left_out=self.left_out,
+            left_out=tuple(self.left_out.values()),
         )
 
     def _context(
