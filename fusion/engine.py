@@ -740,35 +740,34 @@ class Engine:
         if opts.mode == "off":
             return None
         to_standard = None if self._coordinates is None else self._standard_at
-        if opts.mode == "whole":
-            return WindowedSmoother(
-                bank.smoothing_dim, lambda _: False, opts.memory_budget_mb, to_standard
-            )
-        reporters = [p for p in self.plugins if p.closes_windows]
-        if not reporters:
-            ends = [
-                b
-                for b in self.config.plugins
-                if b.instance_name in self.left_out and load_plugin_class(b.type).closes_windows
-            ]
-            if not ends:
-                raise ConfigError(
-                    "config key smoother.mode: online smoothing needs a plugin that reports"
-                    " window ends (face ends), e.g. cpoem; none of the configured plugins does"
-                )
-            _log.warning(
-                "smoother.mode online: %s, which ends its windows, was left out (no stream);"
-                " the whole recording is smoothed as one window instead",
-                ends[0].instance_name,
-            )
-            return WindowedSmoother(
-                bank.smoothing_dim, lambda _: False, opts.memory_budget_mb, to_standard
-            )
+        reporters = [p for p in self.plugins if p.closes_windows] if opts.mode == "online" else []
+        if opts.mode == "online" and not reporters:
+            self._online_without_window_ends()
 
-        def due(t: float) -> bool:
+        def due(t: float) -> bool:  # without reporters: one window, the whole recording
             return any([p.window_end_due(t) for p in reporters])  # ask every one: each counts
 
         return WindowedSmoother(bank.smoothing_dim, due, opts.memory_budget_mb, to_standard)
+
+    def _online_without_window_ends(self) -> None:
+        """Online smoothing with no plugin to end its windows: a configuration error, unless
+        the one that would have was left out for a missing stream; then a warning, and the
+        whole recording is smoothed as one window."""
+        ends = [
+            b
+            for b in self.config.plugins
+            if b.instance_name in self.left_out and load_plugin_class(b.type).closes_windows
+        ]
+        if not ends:
+            raise ConfigError(
+                "config key smoother.mode: online smoothing needs a plugin that reports"
+                " window ends (face ends), e.g. cpoem; none of the configured plugins does"
+            )
+        _log.warning(
+            "smoother.mode online: %s, which ends its windows, was left out (no stream);"
+            " the whole recording is smoothed as one window instead",
+            ends[0].instance_name,
+        )
 
     def _smoothing_step(
         self,

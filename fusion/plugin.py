@@ -461,11 +461,8 @@ def create_plugin(
     cls, opts = validated_options(kind, options, where)
     try:
         return cls(name, opts, recording)
-    except MissingStream as exc:
-        raise MissingStream(
-            f"configuration: key {dotted(where)} ({kind}): recording {recording.path}: {exc}"
-        ) from None
     except ValueError as exc:
-        raise PluginError(
+        error = MissingStream if isinstance(exc, MissingStream) else PluginError
+        raise error(
             f"configuration: key {dotted(where)} ({kind}): recording {recording.path}: {exc}"
         ) from None
