@@ -1052,6 +1052,8 @@ class Engine:
             return False
         rot = ctx.rotation_to_local
         error = rot @ (ctx.position_enu - fix.position_enu)  # δp of the nominal, local metres
+        if self._take_in_fix(src, t, error, rot @ fix.covariance @ rot.T, ctx, bank):
+            return True
         velocity_error, states, covariance = np.zeros(3), np.r_[6:9], rot @ fix.covariance @ rot.T
         if velocity:
             velocity_error = ctx.velocity - rot @ fix.velocity_enu
@@ -1069,6 +1071,54 @@ class Engine:
         bank.faults.append(
             FaultEvent(t, plugin.name, float(np.linalg.norm(error)), math.nan, REACQUIRE, reason)
         )
+        lock = self._locks[src]
+        if lock is not None:
+            lock.reset()
+        return True
+
+    def _take_in_fix(
+        self,
+        src: int,
+        t: float,
+        error: NDArray[np.float64],
+        covariance: NDArray[np.float64],
+        ctx: MeasurementContext,
+        bank: FilterBank,
+    ) -> bool:
+        """Take plugin ``src``'s re-acquisition fix in as a position update when it agrees
+        with the filter (within the plugin's gate, χ² with 3 degrees of freedom); whether it
+        did. ``error``: the nominal position minus the fix's (local metres), ``covariance``
+        the fix's (local axes).
+
+        A fix that agrees shows a filter that is uncertain, not lost (the SINS back among
+        the anchors after a pass, its σ metres along the face): restarting there would throw
+        away what the SINS still knows where the fix is weak — the height and the across-face
+        position, seen from anchors clustered at a face end 40 m away — and the ranges that
+        follow, linearized about a height the fix left 13 m uncertain, slid the filter along
+        their sphere to 8 m off at a σ of 0.2 m (random world 12 at its own length). The
+        update adds the fix's information to the filter's position alone: every other state
+        is a consider state (:attr:`fusion.plugin.Measurement.consider`), since a fix that
+        moves the position by 160 m after a pass moves the heading and the gyro bias through
+        correlations far beyond their linearization; the ranges that follow correct them
+        through the correlations the update leaves right."""
+        plugin = self.plugins[src]
+        layout, kf = bank.filter_of(src)
+        position = layout.slice(POSITION)
+        h = np.zeros((3, layout.dim))
+        h[:, position] = np.eye(3)
+        others = tuple(i for i in range(layout.dim) if not position.start <= i < position.stop)
+        m = Measurement(error, h, covariance, consider=others)
+        rows = self._filter_rows(h, None, ctx)
+        shared = bank.shared_covariance(src)
+        res = self._kalman_update(kf, m, rows, self.gates[src], shared, None, ctx)
+        if not res.accepted or res.gain is None:
+            return False
+        moved = float(np.linalg.norm(res.gain[position] @ res.innovation))
+        reason = (
+            f"{plugin.name} alone gave a fix within the filter's σ (χ² {res.nis:.3g} of 3"
+            f" degrees of freedom), taken in as a position update that moved it {moved:.3g} m"
+        )
+        bank.faults.append(FaultEvent(t, plugin.name, moved, math.nan, REACQUIRE, reason))
         lock = self._locks[src]
         if lock is not None:
             lock.reset()

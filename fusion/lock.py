@@ -13,22 +13,23 @@ every anchor looks the same from the UWB alone), the lock is lost. The engine
 then asks the plugin for what it can say alone (:meth:`fusion.plugin.Plugin.reacquire`, e.g. a
 UWB least-squares fix from the ranges of the last seconds), restarts the filter's position and
 velocity at that fix, uncorrelated with the rest, and writes a ``reacquire`` line to
-``faults.csv``. A plugin that cannot say where the machine is (an odometer, a motion
-constraint) gets a ``lost lock`` line, and the variances of the SINS states are multiplied by
-the fading factor λ of the last rejected innovation (:func:`fading_factor`): the smallest λ with
-``νᵀ (λ H P Hᵀ + R)⁻¹ ν = m``, the factor that makes that innovation a 1-σ one (the
-fading-memory step; Fagin 1964; Xia, Rao, Ying & Shen, *Adaptive fading Kalman filter with an
-application*, Automatica 1994), at most :data:`MAX_FADING`, the attitude's only up to a σ of
-:data:`MAX_INFLATED_ATTITUDE_SIGMA` (:func:`inflation_variances`). The increase is added as
-uncorrelated noise (:meth:`fusion.kalman.KalmanFilter.add_variances`), not as ``λ P``: the
-velocity–attitude correlations of a converged SINS, kept at full strength, let the first zero
-velocity after the inflation swing the attitude. A SINS whose gyro bias is several
-times its prior (a harsh world's 2700 °/h against 720 °/h) otherwise tilts faster than its
-covariance allows, has every odometer update rejected from its first seconds, and coasts for the
-rest of the recording. Only the SINS states are inflated: the rejected plugin's own states
-(mounting, scale) would otherwise take up the next update instead of the SINS. Once per loss:
-a lost lock again before a window with most updates accepted is only reported
-(:meth:`LockMonitor.first_inflation`). Either way the monitor starts over.
+``faults.csv`` (a fix within the filter's own σ, from a filter uncertain rather than lost, is taken
+in as a position update instead: ``Engine._take_in_fix``). A plugin that cannot say where the
+machine is (an odometer, a motion constraint) gets a ``lost lock`` line, and the variances of the
+SINS states are multiplied by the fading factor λ of the last rejected innovation
+(:func:`fading_factor`): the smallest λ with ``νᵀ (λ H P Hᵀ + R)⁻¹ ν = m``, the factor that makes
+that innovation a 1-σ one (the fading-memory step; Fagin 1964; Xia, Rao, Ying & Shen, *Adaptive
+fading Kalman filter with an application*, Automatica 1994), at most :data:`MAX_FADING`, the
+attitude's only up to a σ of :data:`MAX_INFLATED_ATTITUDE_SIGMA` (:func:`inflation_variances`). The
+increase is added as uncorrelated noise (:meth:`fusion.kalman.KalmanFilter.add_variances`), not as
+``λ P``: the velocity–attitude correlations of a converged SINS, kept at full strength, let the
+first zero velocity after the inflation swing the attitude. A SINS whose gyro bias is several times
+its prior (a harsh world's 2700 °/h against 720 °/h) otherwise tilts faster than its covariance
+allows, has every odometer update rejected from its first seconds, and coasts for the rest of the
+recording. Only the SINS states are inflated: the rejected plugin's own states (mounting, scale)
+would otherwise take up the next update instead of the SINS. Once per loss: a lost lock again before
+a window with most updates accepted is only reported (:meth:`LockMonitor.first_inflation`). Either
+way the monitor starts over.
 """
 
 from __future__ import annotations

@@ -295,8 +295,10 @@ class Plugin(ABC):
 
     def reacquire(self, t: float, ctx: MeasurementContext) -> Reacquisition | None:
         """Where the IMU is at ``t`` from this sensor's readings alone, for a filter whose every
-        update of this plugin was rejected (:mod:`fusion.lock`); default: the plugin cannot
-        say (the lost lock is only reported)."""
+        update of this plugin was rejected (:mod:`fusion.lock`), or that is too uncertain for
+        its linearized measurement (:meth:`beyond_linearization`); default: the plugin cannot
+        say (the lost lock is only reported). A fix the filter's covariance explains is taken
+        in as a position update, one it does not replaces the position (``Engine._reacquire``)."""
         return None
 
     def beyond_linearization(self, index: int, ctx: MeasurementContext) -> bool:

@@ -7,6 +7,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import yaml
 
 from fusion.attitude import dcm_from_euler
 from fusion.config import load_config
@@ -80,12 +81,34 @@ def test_sins_uwb_reacquires_after_an_outage(tmp_path: Path) -> None:
     print(events)
     reacquired = [t for action, t, _ in events if action == REACQUIRE]
     assert len(reacquired) == 1 and 220.0 < reacquired[0] < 225.0
+    # The fix agrees with the coasting filter: an update, not a restart (Engine._take_in_fix).
+    assert "taken in as a position update" in result.faults[-1].reason
     sol = result.solution
     inside, position, *_ = interpolate_truth(rec.truth, sol.t)
     error = np.hypot(*(sol.position[inside, :2] - position[:, :2]).T)
     t = sol.t[inside]
     assert error[(t > 210) & (t < 220)].max() > 5.0  # coasting
     assert error[t > reacquired[0] + 1.0].max() < 2.0
+
+
+def test_a_filter_confidently_off_restarts_at_the_fix(tmp_path: Path) -> None:
+    """meta.yaml's initial position 15 m off at its σ of centimetres: every range is rejected,
+    the lock is lost within seconds, and the fix, which the filter's covariance cannot explain,
+    replaces its position instead of being averaged with it."""
+    path = simulate("longwall-200m", tmp_path / "rec", seed=1, overrides=["duration_s=30"])
+    meta = yaml.safe_load((path / "meta.yaml").read_text())
+    meta["initial"]["position_enu_m"][0] += 15.0
+    (path / "meta.yaml").write_text(yaml.safe_dump(meta))
+    rec = read_recording(path)
+    assert rec.truth is not None
+    result = Engine(load_config(CONFIGS / "sins_uwb.yaml"), rec).run()
+    restarts = [e for e in result.faults if e.action == REACQUIRE]
+    assert len(restarts) == 1 and restarts[0].t < 5.0
+    assert "alone moved the position by 15 m" in restarts[0].reason
+    sol = result.solution
+    inside, position, *_ = interpolate_truth(rec.truth, sol.t)
+    error = np.hypot(*(sol.position[inside, :2] - position[:, :2]).T)
+    assert error[sol.t[inside] > 10.0].max() < 0.1
 
 
 def test_fading_factor_makes_the_innovation_one_sigma() -> None:
