@@ -5,7 +5,10 @@ cycle (origin ENU). The face line is their horizontal direction: unit vector ``a
 B, horizontal normal ``n = (a_N, −a_E, 0)`` and length ``L = ‖(B − A)_h‖``. A point p has the
 along-face coordinate ``s = a · (p − A)`` (m from end A). The shearer works between the ends
 (``0 ≤ s ≤ L``) while the face advances across it cycle by cycle, so the across-face
-coordinate grows without a bound the meta data give, and the along-face one stays.
+coordinate grows without a bound the meta data give, and the along-face one stays. The face's
+height at ``s`` is the straight line between the ends' heights, ``A_U + (B_U − A_U) s / L``
+(``s`` held within the ends): the floor between them follows the seam, which rolls about that
+line by what the meta data do not give.
 """
 
 from __future__ import annotations
@@ -26,6 +29,8 @@ class FaceLine:
     along: NDArray[np.float64]
     normal: NDArray[np.float64]
     length: float
+    rise: float = 0.0
+    """Height of end B above end A (m)."""
 
     @classmethod
     def from_ends(cls, ends_enu: NDArray[np.float64]) -> FaceLine:
@@ -37,7 +42,7 @@ class FaceLine:
         scale = 1.0 / length if length > 0 else 0.0
         along = np.array([step[0], step[1], 0.0]) * scale
         normal = np.array([step[1], -step[0], 0.0]) * scale
-        return cls(ends[0].copy(), along, normal, length)
+        return cls(ends[0].copy(), along, normal, length, float(step[2]))
 
     @classmethod
     def from_meta(cls, face: FaceMeta | None) -> FaceLine | None:
@@ -55,6 +60,14 @@ class FaceLine:
     def along_face(self, position_enu: NDArray[np.float64]) -> float:
         """Along-face coordinate s of an origin-ENU position (m from end A)."""
         return float(self.along @ (position_enu - self.end_a))
+
+    def height(self, position_enu: NDArray[np.float64]) -> float:
+        """The face line's height (origin ENU up, m) at the along-face coordinate of a
+        position, that coordinate held within the ends."""
+        if self.length <= 0.0:
+            return float(self.end_a[2])
+        s = min(max(self.along_face(position_enu), 0.0), self.length)
+        return float(self.end_a[2]) + self.rise * s / self.length
 
     def reaches(self, position_enu: NDArray[np.float64], margin_m: float) -> bool:
         """Whether a position lies along the face within ``margin_m`` beyond either end."""

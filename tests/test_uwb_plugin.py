@@ -384,6 +384,52 @@ def test_reacquisition_refuses_a_mirror_image_nothing_tells_apart() -> None:
     np.testing.assert_allclose(held.position_enu, ON_FACE, atol=0.02)
 
 
+# Three anchors at face end B at nearly one height (within 0.7 m), the tag on the face 40 m
+# away and 0.3 m below the end-to-end line, which falls 4 m from end A to end B.
+CLUSTER = {"B1": (-5.0, 101.0, -2.0), "B2": (-4.0, 104.0, -2.5), "B3": (9.0, 100.0, -2.7)}
+FALLING_FACE = {"ends_enu_m": [[0.0, 0.0, 0.0], [0.0, 100.0, -4.0]]}
+FAR_FROM_CLUSTER = np.array([0.5, 62.0, -2.18])
+
+
+def test_a_fix_far_from_clustered_anchors_takes_the_face_height() -> None:
+    """From 40 m, anchors at nearly one height tell the tag's height poorly: over 40 noisy
+    windows fixes land up to 10 m off in height and 1.4 m off horizontally (random world 19 at
+    its own length: a fix 15 m off in height claimed 1.6 m, and the filter restarted there
+    stayed 5 m off at 6 cm). The face line's height (face_height_sigma_m) holds the fixes
+    within its σ, and the horizontal with it."""
+    rng = np.random.default_rng(7)
+    ids = list(CLUSTER)
+    errors: dict[float | None, list[np.ndarray]] = {3.0: [], None: []}
+    sigmas: list[np.ndarray] = []
+    for _ in range(40):
+        ranges = [
+            (a, float(np.linalg.norm(FAR_FROM_CLUSTER - np.array(CLUSTER[a]))) + 0.05 * noise)
+            for a, noise in ((ids[k % 3], rng.standard_normal()) for k in range(290))
+        ]
+        rec = _recording(CLUSTER, (0.0, 0.0, 0.0), ranges, face=FALLING_FACE)
+        guess = FAR_FROM_CLUSTER + rng.normal(0.0, [3.0, 3.0, 1.0])
+        for height_sigma, found in errors.items():
+            plugin = UwbRanges("uwb", UwbOptions(face_height_sigma_m=height_sigma), rec)
+            layout = layout_with(plugin.state_blocks())
+            covariance = layout.initial_covariance()
+            covariance[6:9, 6:9] = np.diag([9.0, 9.0, 1.0])
+            ctx = perturbed_context(
+                layout, np.zeros(layout.dim), t=3.4, position_enu=guess, covariance=covariance
+            )
+            fix = plugin.reacquire(3.4, ctx)
+            if fix is None:  # ambiguous: no fix
+                continue
+            found.append(fix.position_enu - FAR_FROM_CLUSTER)
+            if height_sigma is not None:
+                sigmas.append(np.sqrt(np.diag(fix.covariance)))
+    with_row, without = np.array(errors[3.0]), np.array(errors[None])
+    assert len(with_row) >= 35
+    assert np.abs(with_row[:, 2]).max() < 3.0 < 5.0 < np.abs(without[:, 2]).max()
+    assert np.hypot(with_row[:, 0], with_row[:, 1]).max() < 0.3
+    assert np.hypot(without[:, 0], without[:, 1]).max() > 1.0
+    assert np.all(np.sqrt(np.mean((with_row / np.array(sigmas)) ** 2, axis=0)) < 1.5)
+
+
 def test_an_anchor_whose_ranges_read_short_for_a_window_shows_a_wrong_solution() -> None:
     """No NLOS shortens a range: when every range of one anchor reads shorter than the
     filter's distance beyond the gate for SHORT_RANGE_WINDOW_S, the filter is on a wrong
@@ -895,7 +941,9 @@ def test_a_fix_far_from_clustered_anchors_widens_its_weakest_axis(
             continue
         position, covariance = fit
         cost = _chi2(position, anchors[index], ranges, None, 0.08)
-        widened = _profiled_covariance(position, covariance, cost, anchors[index], ranges, options)
+        widened = _profiled_covariance(
+            position, covariance, cost, anchors[index], ranges, None, options
+        )
         err = (position - truth)[:2]
         linearized.append(err @ np.linalg.solve(covariance[:2, :2], err) / 2.0)
         profiled.append(err @ np.linalg.solve(widened[:2, :2], err) / 2.0)
