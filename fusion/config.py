@@ -337,7 +337,8 @@ class FilterOptions(_Strict):
         " one fixed direction, the specific force drops out of its dynamics, and a source that"
         " cannot see the heading finds no heading column; the plugins' rows, the feedback and"
         " the outputs stay in the standard error. heading in the odometer-only configurations"
-        " (sins_od_ckf, sins_od_cpoem*): nothing there sees the heading",
+        " (sins_od_ckf, sins_od_cpoem*), where nothing sees the heading, and in sins_uwb,"
+        " where only the track between the face ends does",
     )
     reported_covariance: Literal["filter", "invariant_analysis"] = Field(
         "filter",

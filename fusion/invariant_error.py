@@ -32,9 +32,9 @@ Roumeliotis, IJRR 2010, projects the same direction out of Φ and H instead; it 
 project's first treatment, with the same figures: docs/design/2026-11-29-ablation-regressions.md.)
 
 ``T`` may carry the heading alone (:data:`AXES` ``heading``: the turn about the vertical, the one
-symmetry gravity leaves; the tilt keeps the standard error and its ``fⁿ × φ``) or the whole
-attitude (``full``). ``heading`` is on in the odometer-only configurations; measured effects,
-and why it is not the default elsewhere: ``docs/design/2026-11-29-invariant-error.md``.
+symmetry gravity leaves; the tilt keeps the standard error and its ``fⁿ × φ``) or the whole attitude
+(``full``). ``heading`` is on in the odometer-only configurations and in ``sins_uwb``; measured
+effects, and why it is not the default elsewhere: ``docs/design/2026-11-29-invariant-error.md``.
 
 The plugins keep their measurement rows in the error of :mod:`fusion.error_model`; the engine
 multiplies them by ``T`` at the velocity the plugin linearized at
