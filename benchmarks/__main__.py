@@ -7,9 +7,11 @@ ZUPT), ``seed003`` (SINS/OD/MAG; CKF vs AFKF under magnetic interference), ``see
 factor and peak memory on the 8-hour shift, beside the naive covariance step), ``robustness``
 (every configuration on 20 randomized worlds, failures counted), ``robustness-federated`` (its
 federated filters and ``full_ckf`` alone, to rerun after a change of the fault detection),
-``robustness-harsh`` (the federated filters and their centralized counterparts on worlds with a
-degraded IMU and injected faults) and ``robustness-smoke`` (its CI variant on short worlds);
-these three are not part of ``all``, and RESULTS.md quotes the harsh one by hand. Each writes
+``robustness-uwb`` (its filters with UWB ranges alone, to rerun after a change of the range
+updates or the re-acquisition), ``robustness-harsh`` (the federated filters and their
+centralized counterparts on worlds with a degraded IMU and injected faults) and
+``robustness-smoke`` (its CI variant on short worlds); these four are not part of ``all``, and
+RESULTS.md quotes the harsh one and the UWB one by hand. Each writes
 Markdown and CSV tables and PNG figures into ``--out`` (default ``benchmarks/results/SUITE/``).
 ``all`` runs every suite (the real-data one too) and regenerates ``benchmarks/RESULTS.md``;
 ``results`` only assembles RESULTS.md from the suites' last outputs (each section keeps its

@@ -213,6 +213,21 @@ def federated_tables() -> list[TableSpec]:
     return _table(FEDERATED_CONFIGS, "Federated filters on random worlds (longwall-random)")
 
 
+UWB_CONFIGS = ("full_afkf", "full_afkf_rts", "full_ckf", "sins_uwb")
+"""``robustness-uwb``: the filters with tightly coupled UWB ranges, to rerun after a change of the
+range updates or the re-acquisition (the rest of the ``robustness`` table does not change)."""
+
+
+def uwb_tasks(runs: int, overrides: tuple[str, ...]) -> list[Task]:
+    """:func:`robustness_tasks` for :data:`UWB_CONFIGS`."""
+    return robustness_tasks(runs, overrides, UWB_CONFIGS)
+
+
+def uwb_tables() -> list[TableSpec]:
+    """:func:`robustness_tables` for :data:`UWB_CONFIGS`."""
+    return _table(UWB_CONFIGS, "Filters with UWB ranges on random worlds (longwall-random)")
+
+
 HARSH_CONFIGS = ("full_afkf", "full_afkf_rts", "full_ckf", "sins_od_mag_afkf", "sins_od_mag_ckf")
 """``robustness-harsh``: the federated filters and their centralized counterparts on worlds with a
 degraded IMU (worse than its datasheet) and injected faults, where isolation decisions matter."""

@@ -42,6 +42,8 @@ from benchmarks.robustness import (
     robustness_tasks,
     smoke_tables,
     smoke_tasks,
+    uwb_tables,
+    uwb_tasks,
 )
 from benchmarks.runner import Method, Task, describe_machine
 from benchmarks.tables import Column, RowSpec, TableSpec
@@ -659,6 +661,14 @@ SUITES: dict[str, Suite] = {
             20,
             federated_tasks,
             federated_tables,
+            in_results=False,
+        ),
+        Suite(
+            "robustness-uwb",
+            "the filters with UWB ranges on the robustness worlds",
+            20,
+            uwb_tasks,
+            uwb_tables,
             in_results=False,
         ),
         Suite(
