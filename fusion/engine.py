@@ -61,7 +61,7 @@ from fusion.innovations import InnovationLog
 from fusion.invariant_error import AXES, InvariantCoordinates
 from fusion.jumps import JumpDetector, JumpState, jump_states
 from fusion.kalman import CorrelatedNoise, KalmanFilter, UpdateResult
-from fusion.lock import LOST_LOCK, REACQUIRE, LockMonitor, fading_factor
+from fusion.lock import FIX_GATE_PROBABILITY, LOST_LOCK, REACQUIRE, LockMonitor, fading_factor
 from fusion.memory import release_freed_memory
 from fusion.observability import Observability, ObservabilityTracker
 from fusion.plugin import (
@@ -1086,9 +1086,9 @@ class Engine:
         bank: FilterBank,
     ) -> bool:
         """Take plugin ``src``'s re-acquisition fix in as a position update when it agrees
-        with the filter (within the plugin's gate, χ² with 3 degrees of freedom); whether it
-        did. ``error``: the nominal position minus the fix's (local metres), ``covariance``
-        the fix's (local axes).
+        with the filter (within the plugin's gate, or :data:`fusion.lock.FIX_GATE_PROBABILITY`
+        for an ungated one; χ² with 3 degrees of freedom); whether it did. ``error``: the
+        nominal position minus the fix's (local metres), ``covariance`` the fix's (local axes).
 
         A fix that agrees shows a filter that is uncertain, not lost (the SINS back among
         the anchors after a pass, its σ metres along the face): restarting there would throw
@@ -1110,7 +1110,8 @@ class Engine:
         m = Measurement(error, h, covariance, consider=others)
         rows = self._filter_rows(h, None, ctx)
         shared = bank.shared_covariance(src)
-        res = self._kalman_update(kf, m, rows, self.gates[src], shared, None, ctx)
+        gate = self.gates[src] or FIX_GATE_PROBABILITY  # an ungated plugin's fix is still tested
+        res = self._kalman_update(kf, m, rows, gate, shared, None, ctx)
         if not res.accepted or res.gain is None:
             return False
         moved = float(np.linalg.norm(res.gain[position] @ res.innovation))

@@ -57,6 +57,11 @@ class Reacquisition:
     velocity_covariance: NDArray[np.float64]
 
 
+FIX_GATE_PROBABILITY = 0.999
+"""χ² probability within which a re-acquisition fix of a plugin without a gate of its own agrees
+with the filter (and is taken in as an update rather than restarting the position)."""
+
+
 MAX_FADING = 1e4
 """Largest fading factor (a σ 100 times the filter's): an innovation that no inflation of
 ``H P Hᵀ`` within it explains lies mostly in R's directions — the sensor's own inconsistency,
