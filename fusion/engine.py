@@ -61,7 +61,14 @@ from fusion.innovations import InnovationLog
 from fusion.invariant_error import AXES, InvariantCoordinates
 from fusion.jumps import JumpDetector, JumpState, jump_states
 from fusion.kalman import CorrelatedNoise, KalmanFilter, UpdateResult
-from fusion.lock import FIX_GATE_PROBABILITY, LOST_LOCK, REACQUIRE, LockMonitor, fading_factor
+from fusion.lock import (
+    FIX_GATE_PROBABILITY,
+    LOST_LOCK,
+    REACQUIRE,
+    LockMonitor,
+    Reacquisition,
+    fading_factor,
+)
 from fusion.memory import release_freed_memory
 from fusion.observability import Observability, ObservabilityTracker
 from fusion.plugin import (
@@ -1046,15 +1053,41 @@ class Engine:
         full filter its odometer's lock (59 m off on random world 2 at its own length)."""
         plugin = self.plugins[src]
         layout, kf = bank.filter_of(src)
-        ctx = self._context(sins, layout, kf, t, bank.shared_covariance(src))
+        shared = bank.shared_covariance(src)
+        ctx = self._context(sins, layout, kf, t, shared)
         fix = plugin.reacquire(t, ctx)
         if fix is None:
             return False
         rot = ctx.rotation_to_local
         error = rot @ (ctx.position_enu - fix.position_enu)  # δp of the nominal, local metres
-        if self._take_in_fix(src, t, error, rot @ fix.covariance @ rot.T, ctx, bank):
-            return True
-        velocity_error, states, covariance = np.zeros(3), np.r_[6:9], rot @ fix.covariance @ rot.T
+        covariance = rot @ fix.covariance @ rot.T
+        taken_in = self._take_in_fix(src, kf, layout, shared, error, covariance, ctx)
+        if taken_in is None:
+            self._restart_at_fix(sins, bank, fix, error, covariance, ctx, velocity)
+            moved = float(np.linalg.norm(error))
+            reason = f"{plugin.name} alone moved the position by {moved:.3g} m"
+        else:
+            moved, reason = taken_in
+        bank.faults.append(FaultEvent(t, plugin.name, moved, math.nan, REACQUIRE, reason))
+        lock = self._locks[src]
+        if lock is not None:
+            lock.reset()
+        return True
+
+    def _restart_at_fix(
+        self,
+        sins: Strapdown,
+        bank: FilterBank,
+        fix: Reacquisition,
+        error: NDArray[np.float64],
+        covariance: NDArray[np.float64],
+        ctx: MeasurementContext,
+        velocity: bool,
+    ) -> None:
+        """Restart the position (local ``error`` and ``covariance`` of the fix) and, if
+        ``velocity``, the velocity at ``fix``, uncorrelated with the rest."""
+        rot = ctx.rotation_to_local
+        velocity_error, states = np.zeros(3), np.r_[6:9]
         if velocity:
             velocity_error = ctx.velocity - rot @ fix.velocity_enu
             states = np.r_[0:3, 6:9]
@@ -1067,28 +1100,24 @@ class Engine:
             self._analysis.restart_block(states, covariance, *self._point(sins.nav))
         if self._coordinates is not None:
             bank.change_coordinates(self._inverse_transform(sins))
-        reason = f"{plugin.name} alone moved the position by {np.linalg.norm(error):.3g} m"
-        bank.faults.append(
-            FaultEvent(t, plugin.name, float(np.linalg.norm(error)), math.nan, REACQUIRE, reason)
-        )
-        lock = self._locks[src]
-        if lock is not None:
-            lock.reset()
-        return True
 
     def _take_in_fix(
         self,
         src: int,
-        t: float,
+        kf: KalmanFilter,
+        layout: StateLayout,
+        shared: NDArray[np.float64] | None,
         error: NDArray[np.float64],
         covariance: NDArray[np.float64],
         ctx: MeasurementContext,
-        bank: FilterBank,
-    ) -> bool:
-        """Take plugin ``src``'s re-acquisition fix in as a position update when it agrees
-        with the filter (within the plugin's gate, or :data:`fusion.lock.FIX_GATE_PROBABILITY`
-        for an ungated one; χ² with 3 degrees of freedom); whether it did. ``error``: the
-        nominal position minus the fix's (local metres), ``covariance`` the fix's (local axes).
+    ) -> tuple[float, str] | None:
+        """Take plugin ``src``'s re-acquisition fix in as a position update of its filter
+        ``kf`` when it agrees with the filter (within the plugin's gate, or
+        :data:`fusion.lock.FIX_GATE_PROBABILITY` for an ungated one; χ² with 3 degrees of
+        freedom; gated against ``shared``, a federated local's covariance at unit share): how
+        far it moved the position and the ``faults.csv`` reason, or None. ``error``: the
+        nominal position minus the fix's (local metres), ``covariance`` the fix's (local
+        axes).
 
         A fix that agrees shows a filter that is uncertain, not lost (the SINS back among
         the anchors after a pass, its σ metres along the face): restarting there would throw
@@ -1101,29 +1130,22 @@ class Engine:
         moves the position by 160 m after a pass moves the heading and the gyro bias through
         correlations far beyond their linearization; the ranges that follow correct them
         through the correlations the update leaves right."""
-        plugin = self.plugins[src]
-        layout, kf = bank.filter_of(src)
         position = layout.slice(POSITION)
         h = np.zeros((3, layout.dim))
         h[:, position] = np.eye(3)
         others = tuple(i for i in range(layout.dim) if not position.start <= i < position.stop)
         m = Measurement(error, h, covariance, consider=others)
         rows = self._filter_rows(h, None, ctx)
-        shared = bank.shared_covariance(src)
         gate = self.gates[src] or FIX_GATE_PROBABILITY  # an ungated plugin's fix is still tested
         res = self._kalman_update(kf, m, rows, gate, shared, None, ctx)
         if not res.accepted or res.gain is None:
-            return False
+            return None
         moved = float(np.linalg.norm(res.gain[position] @ res.innovation))
         reason = (
-            f"{plugin.name} alone gave a fix within the filter's σ (χ² {res.nis:.3g} of 3"
-            f" degrees of freedom), taken in as a position update that moved it {moved:.3g} m"
+            f"{self.plugins[src].name} alone gave a fix within the filter's σ (χ² {res.nis:.3g}"
+            f" of 3 degrees of freedom), taken in as a position update that moved it {moved:.3g} m"
         )
-        bank.faults.append(FaultEvent(t, plugin.name, moved, math.nan, REACQUIRE, reason))
-        lock = self._locks[src]
-        if lock is not None:
-            lock.reset()
-        return True
+        return moved, reason
 
     def _store(self, src: int, index: int, t: float, sins: Strapdown, bank: FilterBank) -> None:
         """A plugin's store epoch: the filter takes on the stored error's covariances."""

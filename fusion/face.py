@@ -29,7 +29,7 @@ class FaceLine:
     along: NDArray[np.float64]
     normal: NDArray[np.float64]
     length: float
-    rise: float = 0.0
+    rise: float
     """Height of end B above end A (m)."""
 
     @classmethod
