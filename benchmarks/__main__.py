@@ -8,10 +8,11 @@ factor and peak memory on the 8-hour shift, beside the naive covariance step), `
 (every configuration on 20 randomized worlds, failures counted), ``robustness-federated`` (its
 federated filters and ``full_ckf`` alone, to rerun after a change of the fault detection),
 ``robustness-uwb`` (its filters with UWB ranges alone, to rerun after a change of the range
-updates or the re-acquisition), ``robustness-harsh`` (the federated filters and their
+updates or the re-acquisition), ``robustness-zupt`` (``sins_zupt`` alone, after a change of the
+ZUPT's re-acquisition at rest), ``robustness-harsh`` (the federated filters and their
 centralized counterparts on worlds with a degraded IMU and injected faults) and
-``robustness-smoke`` (its CI variant on short worlds); these four are not part of ``all``, and
-RESULTS.md quotes the harsh one and the UWB one by hand. Each writes
+``robustness-smoke`` (its CI variant on short worlds); these five are not part of ``all``, and
+RESULTS.md quotes all but the smoke one by hand. Each writes
 Markdown and CSV tables and PNG figures into ``--out`` (default ``benchmarks/results/SUITE/``).
 ``all`` runs every suite (the real-data one too) and regenerates ``benchmarks/RESULTS.md``;
 ``results`` only assembles RESULTS.md from the suites' last outputs (each section keeps its

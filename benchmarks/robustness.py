@@ -42,6 +42,7 @@ import sys
 import tempfile
 import time
 from collections.abc import Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -93,11 +94,6 @@ def _smooths(config: str) -> bool:
 
 
 # ----------------------------------------------------------------------------- tasks, tables
-FEDERATED_CONFIGS = ("full_afkf", "full_afkf_rts", "full_ckf", "sins_od_mag_afkf")
-"""``robustness-federated``: the federated filters (the ones that isolate) and the centralized
-filter they are compared with, to rerun after a change of the fault detection."""
-
-
 def robustness_tasks(
     runs: int,
     overrides: tuple[str, ...],
@@ -203,29 +199,46 @@ def robustness_tables() -> list[TableSpec]:
     return _table(robustness_configs(), "Every configuration on random worlds (longwall-random)")
 
 
-def federated_tasks(runs: int, overrides: tuple[str, ...]) -> list[Task]:
-    """:func:`robustness_tasks` for :data:`FEDERATED_CONFIGS`."""
-    return robustness_tasks(runs, overrides, FEDERATED_CONFIGS)
+@dataclass(frozen=True)
+class Subset:
+    """Some of the ``robustness`` table's configurations on its worlds, to rerun after a change
+    that can move only their rows (RESULTS.md quotes such a run by hand)."""
+
+    configs: tuple[str, ...]
+    title: str
+    description: str
+
+    def tasks(self, runs: int, overrides: tuple[str, ...]) -> list[Task]:
+        """:func:`robustness_tasks` for these configurations."""
+        return robustness_tasks(runs, overrides, self.configs)
+
+    def tables(self) -> list[TableSpec]:
+        """:func:`robustness_tables` for these configurations."""
+        return _table(self.configs, self.title)
 
 
-def federated_tables() -> list[TableSpec]:
-    """:func:`robustness_tables` for :data:`FEDERATED_CONFIGS`."""
-    return _table(FEDERATED_CONFIGS, "Federated filters on random worlds (longwall-random)")
-
-
-UWB_CONFIGS = ("full_afkf", "full_afkf_rts", "full_ckf", "sins_uwb")
-"""``robustness-uwb``: the filters with tightly coupled UWB ranges, to rerun after a change of the
-range updates or the re-acquisition (the rest of the ``robustness`` table does not change)."""
-
-
-def uwb_tasks(runs: int, overrides: tuple[str, ...]) -> list[Task]:
-    """:func:`robustness_tasks` for :data:`UWB_CONFIGS`."""
-    return robustness_tasks(runs, overrides, UWB_CONFIGS)
-
-
-def uwb_tables() -> list[TableSpec]:
-    """:func:`robustness_tables` for :data:`UWB_CONFIGS`."""
-    return _table(UWB_CONFIGS, "Filters with UWB ranges on random worlds (longwall-random)")
+SUBSETS = {
+    "robustness-federated": Subset(
+        ("full_afkf", "full_afkf_rts", "full_ckf", "sins_od_mag_afkf"),
+        "Federated filters on random worlds (longwall-random)",
+        "the federated filters and full_ckf on the robustness worlds",
+    ),
+    "robustness-uwb": Subset(
+        ("full_afkf", "full_afkf_rts", "full_ckf", "sins_uwb"),
+        "Filters with UWB ranges on random worlds (longwall-random)",
+        "the filters with UWB ranges on the robustness worlds",
+    ),
+    "robustness-zupt": Subset(
+        ("sins_zupt",),
+        "SINS + ZUPT on random worlds (longwall-random)",
+        "SINS + ZUPT on the robustness worlds",
+    ),
+}
+"""The subsets by suite name. ``robustness-federated``: the federated filters (the ones that
+isolate) and the centralized filter they are compared with, after a change of the fault
+detection; ``robustness-uwb``: the filters with tightly coupled UWB ranges, after a change of
+the range updates or their re-acquisition; ``robustness-zupt``: the ZUPT's re-acquisition at
+rest (``max_speed_mps``), after a change of it."""
 
 
 HARSH_CONFIGS = ("full_afkf", "full_afkf_rts", "full_ckf", "sins_od_mag_afkf", "sins_od_mag_ckf")

@@ -33,8 +33,7 @@ import yaml
 from benchmarks.consistency import consistency_tables, consistency_tasks
 from benchmarks.faults import FAULT_KINDS
 from benchmarks.robustness import (
-    federated_tables,
-    federated_tasks,
+    SUBSETS,
     harsh_tables,
     harsh_tasks,
     ranges_preamble,
@@ -42,8 +41,6 @@ from benchmarks.robustness import (
     robustness_tasks,
     smoke_tables,
     smoke_tasks,
-    uwb_tables,
-    uwb_tasks,
 )
 from benchmarks.runner import Method, Task, describe_machine
 from benchmarks.tables import Column, RowSpec, TableSpec
@@ -655,21 +652,9 @@ SUITES: dict[str, Suite] = {
             consistency_tasks,
             consistency_tables,
         ),
-        Suite(
-            "robustness-federated",
-            "the federated filters and full_ckf on the robustness worlds",
-            20,
-            federated_tasks,
-            federated_tables,
-            in_results=False,
-        ),
-        Suite(
-            "robustness-uwb",
-            "the filters with UWB ranges on the robustness worlds",
-            20,
-            uwb_tasks,
-            uwb_tables,
-            in_results=False,
+        *(
+            Suite(name, subset.description, 20, subset.tasks, subset.tables, in_results=False)
+            for name, subset in SUBSETS.items()
         ),
         Suite(
             "robustness-harsh",

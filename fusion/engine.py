@@ -1050,24 +1050,30 @@ class Engine:
         ``velocity`` is false) velocity there and report it (:mod:`fusion.lock`); False when
         the plugin cannot say. A filter on a wrong solution (:meth:`Plugin.off_solution`)
         keeps its velocity: restarting a held velocity from two fixes a second apart cost a
-        full filter its odometer's lock (59 m off on random world 2 at its own length)."""
+        full filter its odometer's lock (59 m off on random world 2 at its own length). A fix
+        with a level (a ZUPT: the machine stands) restarts the velocity, the tilt and the
+        position together (:meth:`_restart_at_rest`)."""
         plugin = self.plugins[src]
         layout, kf = bank.filter_of(src)
-        shared = bank.shared_covariance(src)
-        ctx = self._context(sins, layout, kf, t, shared)
+        ctx = self._context(sins, layout, kf, t, bank.shared_covariance(src))
         fix = plugin.reacquire(t, ctx)
         if fix is None:
             return False
         rot = ctx.rotation_to_local
         error = rot @ (ctx.position_enu - fix.position_enu)  # δp of the nominal, local metres
         covariance = rot @ fix.covariance @ rot.T
-        taken_in = self._take_in_fix(src, kf, layout, shared, error, covariance, ctx)
-        if taken_in is None:
-            self._restart_at_fix(sins, bank, fix, error, covariance, ctx, velocity)
-            moved = float(np.linalg.norm(error))
-            reason = f"{plugin.name} alone moved the position by {moved:.3g} m"
+        if fix.level is not None:
+            moved, reason = self._restart_at_rest(sins, bank, fix, error, covariance, ctx)
         else:
-            moved, reason = taken_in
+            shared = bank.shared_covariance(src)
+            taken_in = self._take_in_fix(src, kf, layout, shared, error, covariance, ctx)
+            if taken_in is None:
+                self._restart_at_fix(sins, bank, fix, error, covariance, ctx, velocity)
+                moved = float(np.linalg.norm(error))
+                reason = f"alone moved the position by {moved:.3g} m"
+            else:
+                moved, reason = taken_in
+        reason = f"{plugin.name} {reason}"
         bank.faults.append(FaultEvent(t, plugin.name, moved, math.nan, REACQUIRE, reason))
         lock = self._locks[src]
         if lock is not None:
@@ -1086,20 +1092,84 @@ class Engine:
     ) -> None:
         """Restart the position (local ``error`` and ``covariance`` of the fix) and, if
         ``velocity``, the velocity at ``fix``, uncorrelated with the rest."""
-        rot = ctx.rotation_to_local
         velocity_error, states = np.zeros(3), np.r_[6:9]
         if velocity:
+            rot = ctx.rotation_to_local
             velocity_error = ctx.velocity - rot @ fix.velocity_enu
             states = np.r_[0:3, 6:9]
             covariance = scipy.linalg.block_diag(rot @ fix.velocity_covariance @ rot.T, covariance)
+        self._restart(sins, bank, ctx, states, covariance, velocity_error, np.zeros(3), error)
+
+    def _restart_at_rest(
+        self,
+        sins: Strapdown,
+        bank: FilterBank,
+        fix: Reacquisition,
+        error: NDArray[np.float64],
+        covariance: NDArray[np.float64],
+        ctx: MeasurementContext,
+    ) -> tuple[float, str]:
+        """Restart the velocity, the tilt (``fix.level``, :class:`fusion.lock.Level`) and the
+        position (local ``error`` and ``covariance`` of the fix) of a machine at rest,
+        uncorrelated with the rest, the heading and the biases kept; how far the position
+        moved and the ``faults.csv`` reason. The position restarts even where the fix agrees
+        with the filter: the velocity error that lost the lock came with position
+        correlations far beyond the first-order model (a SINS that coasted a pass on a wrong
+        tilt and heading), and a zero velocity taken in through them moved the position
+        kilometres from the fix at a σ of a few hundred metres."""
+        assert fix.level is not None
+        rot = ctx.rotation_to_local
+        velocity_error = ctx.velocity - rot @ fix.velocity_enu
+        covariance = scipy.linalg.block_diag(
+            rot @ fix.velocity_covariance @ rot.T, fix.level.variance * np.eye(2), covariance
+        )
+        tilt = fix.level.attitude_error
+        states = np.r_[0:5, 6:9]
+        self._restart(sins, bank, ctx, states, covariance, velocity_error, tilt, error)
+        moved = float(np.linalg.norm(error))
+        reason = (
+            f"at rest: restarted the velocity at zero (it was {np.linalg.norm(velocity_error):.3g}"
+            f" m/s), levelled the attitude by {math.degrees(np.linalg.norm(tilt)):.3g}° and moved"
+            f" the position by {moved:.3g} m"
+        )
+        return moved, reason
+
+    def _restart(
+        self,
+        sins: Strapdown,
+        bank: FilterBank,
+        ctx: MeasurementContext,
+        states: NDArray[np.intp],
+        covariance: NDArray[np.float64],
+        velocity_error: NDArray[np.float64],
+        attitude_error: NDArray[np.float64],
+        position_error: NDArray[np.float64],
+    ) -> None:
+        """Remove the given errors (local axes) from the SINS and restart the common
+        ``states`` with ``covariance``, uncorrelated with the rest (in the standard error)."""
         if self._coordinates is not None:  # the restart is of standard states
             bank.change_coordinates(self._transform(sins))
-        sins.correct(velocity_error, np.zeros(3), error, np.zeros(3), np.zeros(3))
+        sins.correct(velocity_error, attitude_error, np.zeros(3), np.zeros(3), np.zeros(3))
+        if position_error.any():
+            self._move(sins, ctx.position_enu - ctx.rotation_to_local.T @ position_error)
         bank.restart_common(states, covariance)
         if self._analysis is not None:
             self._analysis.restart_block(states, covariance, *self._point(sins.nav))
         if self._coordinates is not None:
             bank.change_coordinates(self._inverse_transform(sins))
+
+    def _move(self, sins: Strapdown, position_enu: NDArray[np.float64]) -> None:
+        """Put the SINS at ``position_enu`` (origin ENU) exactly, its velocity and attitude
+        carried into the local frame there. A position error removed to first order
+        (:func:`fusion.strapdown.remove_errors`) misses by ``d²/R`` (a ZUPT re-acquisition of a
+        SINS that coasted 800 km: 59 km), and a level frame 800 km away is turned by 7°."""
+        nav = sins.nav
+        before = self.frame.rotation_to_local(nav[LAT], nav[LON])
+        lat, lon, height = (float(v) for v in self.frame.to_geodetic(position_enu))
+        turn = self.frame.rotation_to_local(lat, lon) @ before.T  # old local → new local axes
+        nav[LAT], nav[LON], nav[HGT] = lat, lon, height
+        nav[VEL : VEL + 3] = turn @ nav[VEL : VEL + 3]
+        nav[Q0 : Q0 + 4] = attitude.quat_from_dcm(turn @ sins.c_b_n)
 
     def _take_in_fix(
         self,
@@ -1142,7 +1212,7 @@ class Engine:
             return None
         moved = float(np.linalg.norm(res.gain[position] @ res.innovation))
         reason = (
-            f"{self.plugins[src].name} alone gave a fix within the filter's σ (χ² {res.nis:.3g}"
+            f"alone gave a fix within the filter's σ (χ² {res.nis:.3g}"
             f" of 3 degrees of freedom), taken in as a position update that moved it {moved:.3g} m"
         )
         return moved, reason

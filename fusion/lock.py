@@ -47,14 +47,28 @@ LOST_LOCK, REACQUIRE = "lost lock", "reacquire"
 
 
 @dataclass(frozen=True)
+class Level:
+    """The tilt of a SINS at rest, from the gravity its accelerometers read: the attitude error
+    ``φ`` (rad, local ENU; vertical component zero) whose removal (``C ← R(φ) C̃``) turns the
+    measured specific force vertical, and the variance of each of its two horizontal
+    components (rad²)."""
+
+    attitude_error: NDArray[np.float64]
+    variance: float
+
+
+@dataclass(frozen=True)
 class Reacquisition:
     """Where a plugin says the IMU is and how it moves, from its own readings alone: origin-ENU
-    position (m) and velocity (m/s) with their covariances (origin ENU axes)."""
+    position (m) and velocity (m/s) with their covariances (origin ENU axes); ``level``: the
+    tilt, from a plugin that knows the machine stands (a ZUPT), restarted with the velocity
+    whether or not the position fix agrees with the filter."""
 
     position_enu: NDArray[np.float64]
     covariance: NDArray[np.float64]
     velocity_enu: NDArray[np.float64]
     velocity_covariance: NDArray[np.float64]
+    level: Level | None = None
 
 
 FIX_GATE_PROBABILITY = 0.999

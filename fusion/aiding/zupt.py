@@ -124,6 +124,7 @@ from fusion.aiding.zaru import ZeroAngularRate
 from fusion.earth import OMEGA_IE, normal_gravity
 from fusion.encoder import reading_intervals
 from fusion.error_model import ATTITUDE, GYRO_BIAS, POSITION, VELOCITY, ImuNoise, StateBlock
+from fusion.lock import FIX_GATE_PROBABILITY, Level, Reacquisition
 from fusion.plugin import (
     Measurement,
     MeasurementContext,
@@ -318,6 +319,7 @@ def _quiet(x: NDArray[np.float64], sigma: float, size: int, causal: bool) -> NDA
 MOVING_PROBABILITY = 0.999
 """A SINS velocity beyond this quantile of χ²(3) under its own covariance is a moving machine."""
 _MOVING_THRESHOLD = float(chi2.ppf(MOVING_PROBABILITY, 3))
+_AGREEMENT_THRESHOLD = float(chi2.ppf(FIX_GATE_PROBABILITY, 3))
 
 
 def _turning(zaru: Measurement, ctx: MeasurementContext) -> bool:
@@ -400,6 +402,38 @@ def _moving(ctx: MeasurementContext) -> bool:
     return statistic > _MOVING_THRESHOLD
 
 
+def _agrees(zupt: Measurement, ctx: MeasurementContext) -> bool:
+    """Whether the filter's velocity covariance explains the ZUPT's innovation (χ²₃ at
+    :data:`fusion.lock.FIX_GATE_PROBABILITY`)."""
+    s = zupt.H @ ctx.covariance @ zupt.H.T + zupt.R
+    try:
+        statistic = float(zupt.z @ np.linalg.solve(s, zupt.z))
+    except np.linalg.LinAlgError:
+        return False
+    return statistic <= _AGREEMENT_THRESHOLD
+
+
+def level(force_n: NDArray[np.float64]) -> NDArray[np.float64]:
+    """The attitude error ``φ`` (rad, local ENU) of a SINS at rest whose nominal attitude puts
+    the measured specific force at ``force_n``: the rotation, about a horizontal axis, that
+    turns it up (``C ← R(φ) C̃``; exact for any tilt, ``φ ≈ (f_n, −f_e)/g`` for a small one)."""
+    unit = force_n / np.linalg.norm(force_n)
+    axis = np.cross(unit, np.array([0.0, 0.0, 1.0]))
+    sine = float(np.linalg.norm(axis))
+    if sine == 0.0:
+        return np.zeros(3) if unit[2] > 0 else np.array([math.pi, 0.0, 0.0])
+    return axis / sine * math.atan2(sine, float(unit[2]))
+
+
+def _white_variance(accel: NDArray[np.float64]) -> float:
+    """Variance (m²/s⁴) of one horizontal component of the mean of samples ``accel``: their
+    scatter about the mean over their number."""
+    n = accel.shape[0]
+    if n < 2:
+        return 0.0
+    return float(np.mean(np.var(accel, axis=0, ddof=1))) / n
+
+
 REST_NOISE_WINDOW_S = 10.0
 """How far back (s) a release takes the encoder's noise at rest from: a short stop of a
 shearer's, tens of readings."""
@@ -451,6 +485,15 @@ class ZuptOptions(PluginOptions):
     motion_constraint: OdometerOptions | None = Field(
         None, description="odometer motion_constraint options: apply it while moving (eq. 18)"
     )
+    max_speed_mps: float | None = Field(
+        None,
+        gt=0,
+        description="the machine's top speed: a standstill whose every ZUPT the filter rejects"
+        " (a lost lock, filter.lock_window_s) then restarts the velocity at zero, the tilt at"
+        " the accelerometers' gravity, and the position at the last standstill the filter"
+        " agreed with, anywhere within max_speed·Δt of it (Zupt.reacquire); needs"
+        " zero_velocity. None: the lost lock is only reported and the SINS variances inflated",
+    )
     odometer_rest_mps: float | None = Field(
         None,
         gt=0,
@@ -483,6 +526,8 @@ class ZuptOptions(PluginOptions):
             raise ValueError(f"accel_min_mps2 ({lo}) must be below accel_max_mps2 ({hi})")
         if not self.zero_velocity and not self.zero_angular_rate:
             raise ValueError("zero_velocity: false leaves nothing to update: set zero_angular_rate")
+        if self.max_speed_mps is not None and not self.zero_velocity:
+            raise ValueError("max_speed_mps re-acquires at a zero velocity: needs zero_velocity")
         return self
 
 
@@ -523,6 +568,18 @@ class Zupt(Plugin):
             Odometer(name, options.motion_constraint, recording)
             if options.motion_constraint is not None
             else None
+        )
+        self._imu = imu
+        spec = recording.meta.imu.spec
+        self._accel_bias_sigma = (
+            ImuNoise.from_datasheet(**spec.model_dump()).accel_bias
+            if spec is not None and None not in spec.model_dump().values()
+            else None
+        )
+        self._gravity = float(
+            normal_gravity(
+                math.radians(recording.meta.origin.lat_deg), recording.meta.origin.height_m
+            )
         )
         self.start_run()
 
@@ -645,6 +702,7 @@ class Zupt(Plugin):
         self._explained_at = float(self._epochs[0]) if self._epochs.size else 0.0
         self._travel_m = 0.0
         self._widening: dict[int, ProcessNoise] = {}
+        self._agreed: tuple[float, NDArray[np.float64], NDArray[np.float64]] | None = None
         if self.zero_rate is not None:
             self.zero_rate.start_run()
         if self.constraint is not None:
@@ -661,11 +719,11 @@ class Zupt(Plugin):
         if not self.zupt_epoch[index]:
             self._contradicted_since = None
             return self.constraint.measure(index, ctx) if self.constraint is not None else None
-        h = np.zeros((3, ctx.layout.dim))
-        h[:, ctx.layout.slice(VELOCITY)] = np.eye(3)
-        zupt = Measurement(
-            ctx.velocity.copy(), h, np.eye(3) * self.variance, velocity_at=np.zeros(3)
-        )
+        zupt = self._zero_velocity(ctx)
+        if self.options.max_speed_mps is not None and _agrees(zupt, ctx):
+            rot = ctx.rotation_to_local
+            pos = ctx.layout.slice(POSITION)
+            self._agreed = (ctx.t, ctx.position_enu, rot.T @ ctx.covariance[pos, pos] @ rot)
         if self.zero_rate is None:
             return zupt
         t = self._epochs[index]
@@ -685,6 +743,75 @@ class Zupt(Plugin):
         self._explained_at = t
         self._travel_m = 0.0
         return zaru if constraint is None else constraint.stacked_with(zaru)
+
+    def _zero_velocity(self, ctx: MeasurementContext) -> Measurement:
+        """The ZUPT, ``z = ṽⁿ``, ``H = [I₃ 0 …]``, ``R = σ_zv² I₃``."""
+        h = np.zeros((3, ctx.layout.dim))
+        h[:, ctx.layout.slice(VELOCITY)] = np.eye(3)
+        return Measurement(
+            ctx.velocity.copy(), h, np.eye(3) * self.variance, velocity_at=np.zeros(3)
+        )
+
+    def beyond_linearization(self, index: int, ctx: MeasurementContext) -> bool:
+        """With ``max_speed_mps``: a ZUPT epoch at which the filter's speed exceeds the
+        machine's top speed. The SINS then coasted on a tilt and a heading beyond its
+        first-order model, and a zero velocity taken in through its correlations is
+        overconfident (a 157-m/s ZUPT innovation accepted under a σ of hundreds of m/s left the
+        position 3.4 σ off): the engine asks :meth:`reacquire` instead."""
+        limit = self.options.max_speed_mps
+        return bool(
+            limit is not None
+            and self.zupt_epoch[index]
+            and float(np.linalg.norm(ctx.velocity)) > limit
+        )
+
+    def reacquire(self, t: float, ctx: MeasurementContext) -> Reacquisition | None:
+        """At a standstill (a ZUPT epoch at ``t``) where the filter is beyond the top speed or
+        its covariance does not explain the zero velocity: what the machine's rest says alone
+        (option ``max_speed_mps``), or None (a lost lock of a ZARU stacked with the ZUPT is
+        the gyro bias's, inflated as any other).
+
+        - Velocity zero, with the ZUPT's variance.
+        - The tilt (:func:`level`) from the mean specific force of the standstill's last
+          ``guard_s`` less the fed-back accelerometer bias, to within the datasheet
+          accelerometer bias over gravity (an unknown bias tilts the measured vertical by
+          ``b/g``) and the mean's white noise.
+        - The position of the last standstill the filter agreed with (the ZUPT within
+          χ²₃(:data:`fusion.lock.FIX_GATE_PROBABILITY`) of its velocity covariance), with that
+          epoch's covariance plus ``(v_max Δt)²/3`` per axis: the machine is anywhere within
+          ``v_max Δt`` of it, the variance of a uniform spread over ``±v_max Δt`` (as the
+          motion constraint's speed state, :mod:`fusion.aiding.odometer`).
+
+        A SINS coasting a pass with no aiding tilts and turns with its gyro biases; at the next
+        standstill its velocity is metres per second off at a σ that its linearized model kept
+        far below that, every ZUPT is rejected, and without this it coasted on for the rest of
+        the recording, 10⁶ m off (random worlds at their own length)."""
+        options = self.options
+        if options.max_speed_mps is None or self._agreed is None:
+            return None
+        index = int(np.searchsorted(self._epochs, t - 1e-9))
+        if index >= self._epochs.size or not self.zupt_epoch[index]:
+            return None
+        lost = float(np.linalg.norm(ctx.velocity)) > options.max_speed_mps
+        if not lost and _agrees(self._zero_velocity(ctx), ctx):
+            return None  # the velocity is not what the filter lost
+        samples = (self._imu.t > t - options.guard_s) & (self._imu.t <= t)
+        if not samples.any():
+            return None
+        force = self._imu.accel[samples].mean(axis=0) - ctx.accel_bias
+        tilt = level(ctx.c_b_n @ force)
+        variance = _white_variance(self._imu.accel[samples]) / self._gravity**2
+        if self._accel_bias_sigma is not None:
+            variance += (self._accel_bias_sigma / self._gravity) ** 2
+        since, position, covariance = self._agreed
+        spread = (options.max_speed_mps * (t - since)) ** 2 / 3.0
+        return Reacquisition(
+            position,
+            covariance + spread * np.eye(3),
+            np.zeros(3),
+            self.variance * np.eye(3),
+            Level(tilt, variance),
+        )
 
     def _contradicted(
         self, index: int, t: float, zaru: Measurement, ctx: MeasurementContext
