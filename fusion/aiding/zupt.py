@@ -124,7 +124,7 @@ from fusion.aiding.zaru import ZeroAngularRate
 from fusion.earth import OMEGA_IE, normal_gravity
 from fusion.encoder import reading_intervals
 from fusion.error_model import ATTITUDE, GYRO_BIAS, POSITION, VELOCITY, ImuNoise, StateBlock
-from fusion.lock import FIX_GATE_PROBABILITY, Level, Reacquisition
+from fusion.lock import FIX_GATE_PROBABILITY, MAX_INFLATED_ATTITUDE_SIGMA, Level, Reacquisition
 from fusion.plugin import (
     Measurement,
     MeasurementContext,
@@ -754,20 +754,27 @@ class Zupt(Plugin):
 
     def beyond_linearization(self, index: int, ctx: MeasurementContext) -> bool:
         """With ``max_speed_mps``: a ZUPT epoch at which the filter's speed exceeds the
-        machine's top speed. The SINS then coasted on a tilt and a heading beyond its
-        first-order model, and a zero velocity taken in through its correlations is
-        overconfident (a 157-m/s ZUPT innovation accepted under a σ of hundreds of m/s left the
-        position 3.4 σ off): the engine asks :meth:`reacquire` instead."""
+        machine's top speed while its attitude σ exceeds
+        :data:`fusion.lock.MAX_INFLATED_ATTITUDE_SIGMA` (beyond some tens of degrees the
+        first-order model describes nothing). The SINS then coasted on a tilt and a heading
+        beyond that model, and a zero velocity taken in through its correlations is
+        overconfident (a 157-m/s ZUPT innovation accepted at a heading σ of 70° left the
+        position 3.4 σ off): the engine asks :meth:`reacquire` instead. A SINS a few m/s off
+        at a heading σ of a degree (``seed002-rectangle``) is within the model, and the zero
+        velocity corrects its position better than a restart would."""
         limit = self.options.max_speed_mps
-        return bool(
-            limit is not None
-            and self.zupt_epoch[index]
-            and float(np.linalg.norm(ctx.velocity)) > limit
-        )
+        if limit is None or not self.zupt_epoch[index]:
+            return False
+        if float(np.linalg.norm(ctx.velocity)) <= limit:
+            return False
+        attitude = ctx.layout.slice(ATTITUDE)
+        largest = float(np.max(np.diagonal(ctx.covariance[attitude, attitude])))
+        return largest > MAX_INFLATED_ATTITUDE_SIGMA**2
 
     def reacquire(self, t: float, ctx: MeasurementContext) -> Reacquisition | None:
-        """At a standstill (a ZUPT epoch at ``t``) where the filter is beyond the top speed or
-        its covariance does not explain the zero velocity: what the machine's rest says alone
+        """At a standstill (a ZUPT epoch at ``t``) where the filter is beyond its first-order
+        model (:meth:`beyond_linearization`) or its covariance does not explain the zero
+        velocity: what the machine's rest says alone
         (option ``max_speed_mps``), or None (a lost lock of a ZARU stacked with the ZUPT is
         the gyro bias's, inflated as any other).
 
@@ -792,8 +799,7 @@ class Zupt(Plugin):
         index = int(np.searchsorted(self._epochs, t - 1e-9))
         if index >= self._epochs.size or not self.zupt_epoch[index]:
             return None
-        lost = float(np.linalg.norm(ctx.velocity)) > options.max_speed_mps
-        if not lost and _agrees(self._zero_velocity(ctx), ctx):
+        if not self.beyond_linearization(index, ctx) and _agrees(self._zero_velocity(ctx), ctx):
             return None  # the velocity is not what the filter lost
         samples = (self._imu.t > t - options.guard_s) & (self._imu.t <= t)
         if not samples.any():
