@@ -1052,7 +1052,7 @@ class Engine:
         keeps its velocity: restarting a held velocity from two fixes a second apart cost a
         full filter its odometer's lock (59 m off on random world 2 at its own length). A fix
         with a level (a ZUPT: the machine stands) restarts the velocity, the tilt and the
-        position together (:meth:`_restart_at_rest`)."""
+        position together (:meth:`_restart_at_fix`)."""
         plugin = self.plugins[src]
         layout, kf = bank.filter_of(src)
         ctx = self._context(sins, layout, kf, t, bank.shared_covariance(src))
@@ -1062,17 +1062,14 @@ class Engine:
         rot = ctx.rotation_to_local
         error = rot @ (ctx.position_enu - fix.position_enu)  # δp of the nominal, local metres
         covariance = rot @ fix.covariance @ rot.T
-        if fix.level is not None:
-            moved, reason = self._restart_at_rest(sins, bank, fix, error, covariance, ctx)
-        else:
-            shared = bank.shared_covariance(src)
+        shared = bank.shared_covariance(src)
+        taken_in = None
+        if fix.level is None:  # at rest the position restarts too (_restart_at_fix)
             taken_in = self._take_in_fix(src, kf, layout, shared, error, covariance, ctx)
-            if taken_in is None:
-                self._restart_at_fix(sins, bank, fix, error, covariance, ctx, velocity)
-                moved = float(np.linalg.norm(error))
-                reason = f"alone moved the position by {moved:.3g} m"
-            else:
-                moved, reason = taken_in
+        if taken_in is None:
+            moved, reason = self._restart_at_fix(sins, bank, fix, error, covariance, ctx, velocity)
+        else:
+            moved, reason = taken_in
         reason = f"{plugin.name} {reason}"
         bank.faults.append(FaultEvent(t, plugin.name, moved, math.nan, REACQUIRE, reason))
         lock = self._locks[src]
@@ -1089,50 +1086,38 @@ class Engine:
         covariance: NDArray[np.float64],
         ctx: MeasurementContext,
         velocity: bool,
-    ) -> None:
-        """Restart the position (local ``error`` and ``covariance`` of the fix) and, if
-        ``velocity``, the velocity at ``fix``, uncorrelated with the rest."""
-        velocity_error, states = np.zeros(3), np.r_[6:9]
-        if velocity:
-            rot = ctx.rotation_to_local
+    ) -> tuple[float, str]:
+        """Restart the position (local ``error`` and ``covariance`` of the fix), and, if
+        ``velocity`` or the fix has a level, the velocity at ``fix``, uncorrelated with the
+        rest; how far the position moved and the ``faults.csv`` reason.
+
+        A fix with a level (:class:`fusion.lock.Level`: a machine at rest) restarts the tilt
+        too, the heading and the biases kept, and its position even where it agrees with the
+        filter: the velocity error that lost the lock came with position correlations far
+        beyond the first-order model (a SINS that coasted a pass on a wrong tilt and
+        heading), and a zero velocity taken in through them moved the position kilometres
+        from the fix at a σ of a few hundred metres."""
+        rot = ctx.rotation_to_local
+        moved = float(np.linalg.norm(error))
+        velocity_error, tilt, states = np.zeros(3), np.zeros(3), np.r_[6:9]
+        level = fix.level
+        if velocity or level is not None:
             velocity_error = ctx.velocity - rot @ fix.velocity_enu
             states = np.r_[0:3, 6:9]
-            covariance = scipy.linalg.block_diag(rot @ fix.velocity_covariance @ rot.T, covariance)
-        self._restart(sins, bank, ctx, states, covariance, velocity_error, np.zeros(3), error)
-
-    def _restart_at_rest(
-        self,
-        sins: Strapdown,
-        bank: FilterBank,
-        fix: Reacquisition,
-        error: NDArray[np.float64],
-        covariance: NDArray[np.float64],
-        ctx: MeasurementContext,
-    ) -> tuple[float, str]:
-        """Restart the velocity, the tilt (``fix.level``, :class:`fusion.lock.Level`) and the
-        position (local ``error`` and ``covariance`` of the fix) of a machine at rest,
-        uncorrelated with the rest, the heading and the biases kept; how far the position
-        moved and the ``faults.csv`` reason. The position restarts even where the fix agrees
-        with the filter: the velocity error that lost the lock came with position
-        correlations far beyond the first-order model (a SINS that coasted a pass on a wrong
-        tilt and heading), and a zero velocity taken in through them moved the position
-        kilometres from the fix at a σ of a few hundred metres."""
-        assert fix.level is not None
-        rot = ctx.rotation_to_local
-        velocity_error = ctx.velocity - rot @ fix.velocity_enu
-        covariance = scipy.linalg.block_diag(
-            rot @ fix.velocity_covariance @ rot.T, fix.level.variance * np.eye(2), covariance
-        )
-        tilt = fix.level.attitude_error
-        states = np.r_[0:5, 6:9]
+            blocks = [rot @ fix.velocity_covariance @ rot.T, covariance]
+            if level is not None:
+                tilt = level.attitude_error
+                states = np.r_[0:5, 6:9]
+                blocks.insert(1, level.variance * np.eye(2))
+            covariance = scipy.linalg.block_diag(*blocks)
         self._restart(sins, bank, ctx, states, covariance, velocity_error, tilt, error)
-        moved = float(np.linalg.norm(error))
-        reason = (
+        if level is None:
+            return moved, f"alone moved the position by {moved:.3g} m"
+        return moved, (
             f"at rest: restarted the velocity at zero (it was {np.linalg.norm(velocity_error):.3g}"
             f" m/s), levelled the attitude by {math.degrees(np.linalg.norm(tilt)):.3g}° and moved"
             f" the position by {moved:.3g} m"
         )
-        return moved, reason
 
     def _restart(
         self,

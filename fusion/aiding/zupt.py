@@ -404,8 +404,9 @@ def _moving(ctx: MeasurementContext) -> bool:
 
 def _agrees(zupt: Measurement, ctx: MeasurementContext) -> bool:
     """Whether the filter's velocity covariance explains the ZUPT's innovation (χ²₃ at
-    :data:`fusion.lock.FIX_GATE_PROBABILITY`)."""
-    s = zupt.H @ ctx.covariance @ zupt.H.T + zupt.R
+    :data:`fusion.lock.FIX_GATE_PROBABILITY`); ``H P Hᵀ`` is the velocity block."""
+    velocity = ctx.layout.slice(VELOCITY)
+    s = ctx.covariance[velocity, velocity] + zupt.R
     try:
         statistic = float(zupt.z @ np.linalg.solve(s, zupt.z))
     except np.linalg.LinAlgError:
