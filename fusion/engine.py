@@ -51,6 +51,7 @@ from fusion.error_model import (
     SpecificForceFilter,
     StateLayout,
     common_blocks,
+    heading_coupling,
     observable_force,
 )
 from fusion.fault_detection import FaultEvent
@@ -503,7 +504,8 @@ class Engine:
                 f_n = specific_force(sins.take_velocity_increment() / dt, dt)
                 if cfg.observable_force:
                     f_n = observable_force(f_n, sins.c_b_n, bank.common_covariance())
-                phi, qd = self._transition(sins, f_n, dt)
+                coupling = heading_coupling(bank.common_covariance())
+                phi, qd = self._transition(sins, f_n, dt, coupling)
                 gap_noise = None
                 while next_gap is not None and te > next_gap.t_start:
                     noise = self._gap_noise(next_gap, sins, f_n)
@@ -669,14 +671,17 @@ class Engine:
         return self._coordinates.congruent(noise, *self._point(sins.nav), -1.0)
 
     def _transition(
-        self, sins: Strapdown, f_n: NDArray[np.float64], dt: float
+        self, sins: Strapdown, f_n: NDArray[np.float64], dt: float, coupling: float
     ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-        """Φ and Q_d over ``dt`` in the filter's coordinates, the specific force ``f_n`` in F
+        """Φ and Q_d over ``dt`` in the filter's coordinates, the specific force ``f_n`` and the
+        heading's coupling into the tilt (:func:`fusion.error_model.heading_coupling`) in F
         (:meth:`fusion.invariant_error.InvariantCoordinates.transition`)."""
         if self._coordinates is None:
-            return self.model.discrete(sins.nav, f_n, sins.c_b_n, dt)
+            return self.model.discrete(sins.nav, f_n, sins.c_b_n, dt, coupling)
         position = self._point(sins.nav)[1]
-        return self._coordinates.transition(self.model, sins.nav, f_n, sins.c_b_n, position, dt)
+        return self._coordinates.transition(
+            self.model, sins.nav, f_n, sins.c_b_n, position, dt, coupling
+        )
 
     def _analysis_predict(
         self,
@@ -686,11 +691,15 @@ class Engine:
         noise: NDArray[np.float64] | None,
     ) -> None:
         """The covariance analysis's time update over ``dt`` at the filter's specific force,
-        with ``noise`` (over the standard error, an IMU gap's) added."""
+        with ``noise`` (over the standard error, an IMU gap's) added; the heading's coupling
+        into the tilt is the expectation over the analysed error (``P_a``)."""
         assert self._analysis is not None
         velocity, position = self._point(sins.nav)
         coordinates = self._analysis.coordinates
-        phi, qd = coordinates.transition(self.model, sins.nav, f_n, sins.c_b_n, position, dt)
+        coupling = heading_coupling(self._analysis.P)
+        phi, qd = coordinates.transition(
+            self.model, sins.nav, f_n, sins.c_b_n, position, dt, coupling
+        )
         if noise is not None:
             qd = qd + coordinates.congruent(noise, velocity, position, -1.0)
         self._analysis.predict(phi, qd)

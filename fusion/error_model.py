@@ -416,11 +416,17 @@ class ErrorModel:
         self._q = np.diag(q_diag)
 
     def continuous(
-        self, nav: NDArray[np.float64], f_n: NDArray[np.float64], c_b_n: NDArray[np.float64]
+        self,
+        nav: NDArray[np.float64],
+        f_n: NDArray[np.float64],
+        c_b_n: NDArray[np.float64],
+        heading_coupling: float = 1.0,
     ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-        """``F`` and the state-space noise density ``Q`` (n×n) at a nominal state."""
+        """``F`` and the state-space noise density ``Q`` (n×n) at a nominal state; the heading's
+        column in the tilt rows times ``heading_coupling`` (:func:`heading_coupling`)."""
         f = self._f_static.copy()
         _fill_sins_dynamics(f, nav, f_n, c_b_n, self.full)
+        f[_TILT, _HEADING] *= heading_coupling
         return f, self._q.copy()
 
     def discrete(
@@ -429,10 +435,37 @@ class ErrorModel:
         f_n: NDArray[np.float64],
         c_b_n: NDArray[np.float64],
         dt: float,
+        heading_coupling: float = 1.0,
     ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         """Transition matrix Φ and process noise Q_d over ``dt``."""
-        f, q = self.continuous(nav, f_n, c_b_n)
+        f, q = self.continuous(nav, f_n, c_b_n, heading_coupling)
         return discretize(f, q, dt, self.discretization)
+
+
+_TILT = slice(3, 5)
+_HEADING = 5
+
+
+def heading_coupling(p_common: NDArray[np.float64]) -> float:
+    """How much of the rotation rate's coupling of the heading error into the tilt F keeps:
+    ``E[cos ψ] = exp(−σ_ψ²/2)`` for a heading error ψ ~ N(0, σ_ψ²), σ_ψ² from ``p_common``.
+
+    The Earth's rate (and the transport rate) resolved through the estimated attitude is off by
+    ``(R_z(ψ) − I) ω`` for a heading error ψ. F keeps its first-order term, ``−ψ (e_U × ω)``:
+    a heading error turns the horizontal Earth rate into a tilt drift, which a filter that
+    sees the tilt (zero velocities, a level) then reads back as heading — gyrocompassing. That
+    linearization holds for a heading known to a few degrees; for a heading beyond the
+    small-angle model the tilt drift is ``ω_N sin ψ``, bounded by ω_N, while the linear model
+    lets it grow with ψ. Statistical linearization (Gelb, *Applied Optimal Estimation*, 1974,
+    §6.2) replaces the Jacobian by its expectation over the error's distribution: for the
+    zero-mean error a filter assumes, the sine's derivative averages to ``E[cos ψ]``. A heading
+    known to 10° keeps 98.5 % of the coupling (a navigation-grade IMU gyrocompasses as
+    before), one of 60° 58 %, one of 150° 3 %. With the linear coupling, SINS + ZUPT on a
+    random world (19) took a 150°-σ heading to 47° at one standstill while turning the
+    estimate 110° the wrong way (docs/design/2026-11-30-heading-beyond-the-small-angle.md).
+    """
+    variance = float(p_common[_HEADING, _HEADING])
+    return math.exp(-0.5 * variance) if variance > 0.0 else 1.0
 
 
 def observable_force(

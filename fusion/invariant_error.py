@@ -164,17 +164,20 @@ class InvariantCoordinates:
         c_b_n: NDArray[np.float64],
         position: NDArray[np.float64],
         dt: float,
+        heading_coupling: float = 1.0,
     ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         """Φ_ξ and Q_d,ξ over ``dt`` at the nominal state: ``F_ξ = T⁻¹ (F T − Ṫ)`` with ``F``
-        at the specific force ``f_n`` and ``Ṫ`` at ``v̇ = fⁿ + g − (2ω_ie + ω_en) × v``, the
-        same force, which therefore cancels from the columns ``T`` carries."""
+        at the specific force ``f_n`` (and ``heading_coupling``,
+        :func:`fusion.error_model.heading_coupling`) and ``Ṫ`` at
+        ``v̇ = fⁿ + g − (2ω_ie + ω_en) × v``, the same force, which therefore cancels from the
+        columns ``T`` carries."""
         layout = model.layout
         assert (layout.slice(VELOCITY), layout.slice(ATTITUDE), layout.slice(POSITION)) == (
             _V,
             _PHI,
             _P,
         )
-        f, q = model.continuous(nav, f_n, c_b_n)
+        f, q = model.continuous(nav, f_n, c_b_n, heading_coupling)
         v = nav[VEL : VEL + 3]
         lat, h = float(nav[LAT]), float(nav[HGT])
         _, _, w_ie, w_en = kernels.frame_rates(lat, h, v)

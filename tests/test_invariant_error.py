@@ -12,7 +12,7 @@ import pytest
 from fusion.config import load_config, parse_config
 from fusion.earth import OMEGA_IE
 from fusion.engine import Engine
-from fusion.error_model import ATTITUDE, POSITION, VELOCITY
+from fusion.error_model import ATTITUDE, POSITION, VELOCITY, heading_coupling
 from fusion.invariant_error import AXES, InvariantCoordinates
 from fusion.kalman import KalmanFilter
 from fusion.metrics import interpolate_truth
@@ -145,6 +145,52 @@ def test_a_standstill_observes_neither_the_heading_nor_the_vertical_gyro_bias(
     if fluctuation_mg == 50.0:
         bz_standard, *_ = _standstill(fluctuation_mg, None)
         assert bz_standard < 0.5 * bz_prior
+
+
+def _gyrocompass(prior_deg: float, gyro_bias_deg_h: float | None, linear: bool) -> float:
+    """Covariance only: at rest and level for 1200 s, a zero velocity every 0.1 s (σ 1 cm/s),
+    the heading's prior σ ``prior_deg`` (and the gyro biases' ``gyro_bias_deg_h``, None: the
+    layout's); the heading's coupling into the tilt linear or statistically linearized
+    (:func:`fusion.error_model.heading_coupling`). The yaw σ at the end, in degrees."""
+    engine = _engine([{"type": "zupt"}])
+    layout, model = engine.layout, engine.model
+    nav = engine.initial_state().to_array()
+    p = layout.initial_covariance()
+    p[HEADING, HEADING] = np.radians(prior_deg) ** 2
+    if gyro_bias_deg_h is not None:
+        bias = layout.slice("gyro_bias")
+        p[bias, bias] = np.radians(gyro_bias_deg_h / 3600.0) ** 2 * np.eye(3)
+    kf = KalmanFilter(np.zeros(layout.dim), p)
+    h = np.zeros((3, layout.dim))
+    h[:, layout.slice("velocity")] = np.eye(3)
+    for _ in range(12000):
+        coupling = 1.0 if linear else heading_coupling(kf.P)
+        phi, qd = model.discrete(nav, np.array([0.0, 0.0, G]), np.eye(3), 0.1, coupling)
+        kf.predict(phi, qd)
+        kf.update(np.zeros(3), h, 1e-4 * np.eye(3))
+    return float(np.degrees(np.sqrt(kf.P[HEADING, HEADING])))
+
+
+def test_a_standstill_does_not_gyrocompass_a_heading_beyond_the_small_angle_model() -> None:
+    """A MEMS gyro (20 °/h) cannot resolve a heading known to 150° from the Earth's rate: with
+    the coupling statistically linearized the zero velocities leave its σ at ≥ 95 % of the
+    prior; the linear coupling, which lets the tilt drift grow with the heading error past
+    ω_N, halves it."""
+    statistical = _gyrocompass(150.0, None, linear=False)
+    linear = _gyrocompass(150.0, None, linear=True)
+    print(f"yaw σ after 1200 s at rest from 150°: {statistical:.1f}° (linear {linear:.1f}°)")
+    assert statistical >= 0.95 * 150.0
+    assert linear < 0.6 * 150.0
+
+
+def test_a_navigation_grade_gyro_still_gyrocompasses() -> None:
+    """A gyro bias of 0.01 °/h: a heading known to 5° is gyrocompassed below 2° at rest, as
+    with the linear coupling (within 1 %)."""
+    statistical = _gyrocompass(5.0, 0.01, linear=False)
+    linear = _gyrocompass(5.0, 0.01, linear=True)
+    print(f"yaw σ after 1200 s at rest from 5°: {statistical:.3f}° (linear {linear:.3f}°)")
+    assert statistical < 2.0
+    assert statistical == pytest.approx(linear, rel=0.01)
 
 
 @pytest.mark.parametrize("axes", sorted(AXES))
