@@ -502,10 +502,10 @@ class Engine:
             phi = None
             if dt > 1e-9:
                 f_n = specific_force(sins.take_velocity_increment() / dt, dt)
+                common = bank.common_covariance()
                 if cfg.observable_force:
-                    f_n = observable_force(f_n, sins.c_b_n, bank.common_covariance())
-                coupling = heading_coupling(bank.common_covariance())
-                phi, qd = self._transition(sins, f_n, dt, coupling)
+                    f_n = observable_force(f_n, sins.c_b_n, common)
+                phi, qd = self._transition(sins, f_n, dt, heading_coupling(common))
                 gap_noise = None
                 while next_gap is not None and te > next_gap.t_start:
                     noise = self._gap_noise(next_gap, sins, f_n)
