@@ -266,8 +266,9 @@ def test_single_local_equals_centralized_end_to_end(carrier_two_cycles: Path) ->
 
 def test_stores_come_after_the_fusion(carrier_two_cycles: Path) -> None:
     """The engine calls a plugin's store after the instant's update round and feedback: in the
-    federated filter (odometer and CPOEM in two locals) the serving local then holds the fused
-    estimate, zero in the common states, and every other local carries the same cross rows."""
+    federated filter (odometer, CPOEM and the face heading in a local each) the serving local
+    then holds the fused estimate, zero in the common states, and every other local carries the
+    same cross rows."""
     data = load_config(CONFIGS / "sins_od_cpoem.yaml").model_dump()
     data["filter"]["architecture"] = "federated"
     engine = Engine(parse_config(data), read_recording(carrier_two_cycles))
@@ -293,10 +294,10 @@ def test_stores_come_after_the_fusion(carrier_two_cycles: Path) -> None:
     engine.run()
     assert len(calls) == plugin.store_epochs().size > 30
     np.testing.assert_array_equal(np.array(calls), 0.0)
-    odometer_local, cpoem_local = banks[0].locals
-    np.testing.assert_allclose(
-        odometer_local.kf.cross[:15], cpoem_local.kf.cross[:15], rtol=1e-6, atol=1e-12
-    )
+    first, *others = banks[0].locals
+    assert len(others) == 2
+    for local in others:
+        np.testing.assert_allclose(local.kf.cross[:15], first.kf.cross[:15], rtol=1e-6, atol=1e-12)
 
 
 @pytest.mark.parametrize("invariant_error", ["none", "heading"])
