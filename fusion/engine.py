@@ -146,10 +146,21 @@ class RunResult:
         return self.final_state[s], np.sqrt(np.diag(self.final_covariance)[s])
 
 
+WHITE_NOISE_FLOOR = {"gyro_arw_deg_rth": 0.002, "accel_vrw_mg_rthz": 0.01}
+"""The quietest white noise the filter assumes, in datasheet units: a navigation-grade unit's
+(ring-laser gyros about 0.002 deg/√h, accelerometers 5–25 µg/√Hz). No inertial sensor is
+quieter, and a figure of zero (a simulator's error-free sensor, a datasheet field left blank as
+0) leaves the velocity or the attitude without process noise: their covariance collapses, the
+filter stops listening to its aiding, and the mechanization's own errors grow unseen (seed 000's
+grade par5, a perfect accelerometer: vertical error 0.8 m at RMS(ε/σ) 9.3, and the odometer scale
+9σ off; docs/design/2026-11-30-white-noise-floor.md)."""
+
+
 def resolve_imu_noise(tuning: ImuTuning, spec: ImuSpec | None) -> ImuNoise:
     """IMU noise from the configuration, falling back to the recording's datasheet figures; an
     ``imu.bias_instability_fraction`` scales the turn-on biases so resolved into the in-run
-    instability."""
+    instability. The white-noise densities are raised to :data:`WHITE_NOISE_FLOOR` (with a
+    warning) where they are below it."""
     figures = {}
     missing = []
     for key in ("gyro_arw_deg_rth", "accel_vrw_mg_rthz", "gyro_bias_deg_h", "accel_bias_mg"):
@@ -167,14 +178,24 @@ def resolve_imu_noise(tuning: ImuTuning, spec: ImuSpec | None) -> ImuNoise:
                 for k in missing
             )
         )
+    white = {key: figures[key] * tuning.noise_scale for key in WHITE_NOISE_FLOOR}
+    for key, floor in WHITE_NOISE_FLOOR.items():
+        if white[key] < floor:
+            _log.warning(
+                "imu.%s: %g is below any inertial sensor's; the filter takes %g",
+                key,
+                white[key],
+                floor,
+            )
+            white[key] = floor
     gyro_instability = tuning.gyro_bias_instability_deg_h
     accel_instability = tuning.accel_bias_instability_mg
     if tuning.bias_instability_fraction is not None:
         gyro_instability = tuning.bias_instability_fraction * figures["gyro_bias_deg_h"]
         accel_instability = tuning.bias_instability_fraction * figures["accel_bias_mg"]
     noise = ImuNoise.from_datasheet(
-        gyro_arw_deg_rth=figures["gyro_arw_deg_rth"] * tuning.noise_scale,
-        accel_vrw_mg_rthz=figures["accel_vrw_mg_rthz"] * tuning.noise_scale,
+        gyro_arw_deg_rth=white["gyro_arw_deg_rth"],
+        accel_vrw_mg_rthz=white["accel_vrw_mg_rthz"],
         gyro_bias_deg_h=figures["gyro_bias_deg_h"],
         accel_bias_mg=figures["accel_bias_mg"],
         gyro_bias_instability_deg_h=gyro_instability,

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import logging
 from dataclasses import replace
 from functools import lru_cache
 from pathlib import Path
@@ -281,6 +282,33 @@ def test_missing_imu_figures_are_an_error_naming_both_places() -> None:
     bare = Recording(path=None, meta=meta, imu=rec.imu)
     with pytest.raises(ConfigError, match=r"imu\.gyro_arw_deg_rth.*imu\.spec\.gyro_arw_deg_rth"):
         Engine(parse_config({"name": "free"}), bare)
+
+
+def test_a_zero_white_noise_figure_is_raised_to_the_floor_with_a_warning(
+    caplog: pytest.LogCaptureFixture,
+) -> None:
+    """An error-free accelerometer (seed 000's grade par5) must not leave the velocity without
+    process noise; a datasheet figure above the floor is taken as it is."""
+    from fusion.config import ImuTuning
+    from fusion.engine import WHITE_NOISE_FLOOR, resolve_imu_noise
+    from fusion.error_model import ImuNoise
+    from fusion.recording import ImuSpec
+
+    spec = ImuSpec(
+        gyro_bias_deg_h=0.0, gyro_arw_deg_rth=2.0, accel_bias_mg=0.0, accel_vrw_mg_rthz=0.0
+    )
+    with caplog.at_level(logging.WARNING, logger="fusion.engine"):
+        noise = resolve_imu_noise(ImuTuning(), spec)
+    floor = ImuNoise.from_datasheet(
+        gyro_arw_deg_rth=0.0,
+        accel_vrw_mg_rthz=WHITE_NOISE_FLOOR["accel_vrw_mg_rthz"],
+        gyro_bias_deg_h=0.0,
+        accel_bias_mg=0.0,
+    )
+    assert noise.accel_vrw == pytest.approx(floor.accel_vrw) and noise.accel_vrw > 0.0
+    assert noise.gyro_arw == pytest.approx(2.0 * np.pi / 180.0 / 60.0)
+    assert "imu.accel_vrw_mg_rthz: 0 is below any inertial sensor's" in caplog.text
+    assert "gyro_arw" not in caplog.text
 
 
 def test_bias_instability_fraction_follows_the_turn_on_bias_of_either_place() -> None:
