@@ -82,7 +82,7 @@ from fusion.plugin import (
     create_plugin,
     load_plugin_class,
 )
-from fusion.recording import ImuSpec, Recording, check_recording
+from fusion.recording import ImuSpec, InitialSigma, Recording, check_recording
 from fusion.rows import RowBuffer
 from fusion.screening import ScreeningReport, screen_recording
 from fusion.smoother import WindowedSmoother
@@ -146,21 +146,32 @@ class RunResult:
         return self.final_state[s], np.sqrt(np.diag(self.final_covariance)[s])
 
 
-WHITE_NOISE_FLOOR = {"gyro_arw_deg_rth": 0.002, "accel_vrw_mg_rthz": 0.01}
-"""The quietest white noise the filter assumes, in datasheet units: a navigation-grade unit's
-(ring-laser gyros about 0.002 deg/√h, accelerometers 5–25 µg/√Hz). No inertial sensor is
-quieter, and a figure of zero (a simulator's error-free sensor, a datasheet field left blank as
-0) leaves the velocity or the attitude without process noise: their covariance collapses, the
-filter stops listening to its aiding, and the mechanization's own errors grow unseen (seed 000's
-grade par5, a perfect accelerometer: vertical error 0.8 m at RMS(ε/σ) 9.3, and the odometer scale
-9σ off; docs/design/2026-11-30-white-noise-floor.md)."""
+IMU_FIGURE_FLOOR = {
+    "gyro_arw_deg_rth": 0.002,
+    "accel_vrw_mg_rthz": 0.01,
+    "gyro_bias_deg_h": 0.003,
+    "accel_bias_mg": 0.025,
+}
+"""The least IMU error the filter assumes, in datasheet units: a navigation-grade unit's
+(ring-laser gyros: angle random walk about 0.002 deg/√h, bias 0.003–0.01 deg/h;
+accelerometers: 5–25 µg/√Hz, bias about 25 µg). No inertial sensor is better, and a figure of
+zero (a simulator's error-free sensor, a datasheet field left at 0) leaves a state without
+uncertainty. Without white noise the velocity's or the attitude's covariance collapses, the
+filter stops listening to its aiding, and the mechanization's own errors grow unseen (seed
+000's grade par5, an error-free accelerometer: vertical error 0.8 m at RMS(ε/σ) 9.3;
+docs/design/2026-11-30-white-noise-floor.md). A bias of σ 0 makes the covariance singular, which
+the federated master cannot invert."""
+
+INITIAL_SIGMA_FLOOR = {"position_m": 0.001, "velocity_mps": 0.001, "attitude_deg": 0.01}
+"""The least initial uncertainty the filter takes (a total station's millimetre, a
+navigation-grade gyrocompass's 0.01°): meta.yaml may state a start known exactly (σ 0), and a
+singular covariance cannot be inverted by the federated master."""
 
 
 def resolve_imu_noise(tuning: ImuTuning, spec: ImuSpec | None) -> ImuNoise:
     """IMU noise from the configuration, falling back to the recording's datasheet figures; an
     ``imu.bias_instability_fraction`` scales the turn-on biases so resolved into the in-run
-    instability. The white-noise densities are raised to :data:`WHITE_NOISE_FLOOR` (with a
-    warning) where they are below it."""
+    instability. Figures below :data:`IMU_FIGURE_FLOOR` are raised to it, with a warning."""
     figures = {}
     missing = []
     for key in ("gyro_arw_deg_rth", "accel_vrw_mg_rthz", "gyro_bias_deg_h", "accel_bias_mg"):
@@ -178,24 +189,25 @@ def resolve_imu_noise(tuning: ImuTuning, spec: ImuSpec | None) -> ImuNoise:
                 for k in missing
             )
         )
-    white = {key: figures[key] * tuning.noise_scale for key in WHITE_NOISE_FLOOR}
-    for key, floor in WHITE_NOISE_FLOOR.items():
-        if white[key] < floor:
+    for key in ("gyro_arw_deg_rth", "accel_vrw_mg_rthz"):
+        figures[key] *= tuning.noise_scale
+    for key, floor in IMU_FIGURE_FLOOR.items():
+        if figures[key] < floor:
             _log.warning(
                 "imu.%s: %g is below any inertial sensor's; the filter takes %g",
                 key,
-                white[key],
+                figures[key],
                 floor,
             )
-            white[key] = floor
+            figures[key] = floor
     gyro_instability = tuning.gyro_bias_instability_deg_h
     accel_instability = tuning.accel_bias_instability_mg
     if tuning.bias_instability_fraction is not None:
         gyro_instability = tuning.bias_instability_fraction * figures["gyro_bias_deg_h"]
         accel_instability = tuning.bias_instability_fraction * figures["accel_bias_mg"]
     noise = ImuNoise.from_datasheet(
-        gyro_arw_deg_rth=white["gyro_arw_deg_rth"],
-        accel_vrw_mg_rthz=white["accel_vrw_mg_rthz"],
+        gyro_arw_deg_rth=figures["gyro_arw_deg_rth"],
+        accel_vrw_mg_rthz=figures["accel_vrw_mg_rthz"],
         gyro_bias_deg_h=figures["gyro_bias_deg_h"],
         accel_bias_mg=figures["accel_bias_mg"],
         gyro_bias_instability_deg_h=gyro_instability,
@@ -204,6 +216,23 @@ def resolve_imu_noise(tuning: ImuTuning, spec: ImuSpec | None) -> ImuNoise:
         bias_random_walk=tuning.bias_model == "random_walk",
     )
     return noise
+
+
+def initial_sigma(sigma: InitialSigma, scale: float) -> dict[str, NDArray[np.float64]]:
+    """meta.yaml's initial 1-σ (datasheet units) times ``filter.initial_sigma_scale``, raised to
+    :data:`INITIAL_SIGMA_FLOOR` with a warning where below it."""
+    floored = {}
+    for key, floor in INITIAL_SIGMA_FLOOR.items():
+        value = np.asarray(getattr(sigma, key), dtype=float) * scale
+        if (value < floor).any():
+            _log.warning(
+                "initial.sigma.%s: %s is below what any survey gives; the filter takes %g there",
+                key,
+                value.tolist(),
+                floor,
+            )
+        floored[key] = np.maximum(value, floor)
+    return floored
 
 
 def present_plugins(
@@ -382,13 +411,12 @@ class Engine:
         self.stored_error_offsets = np.concatenate([[0], np.cumsum(counts)]).astype(np.intp)
         imu = resolve_imu_noise(config.imu, meta.imu.spec)
         self.imu_noise = imu
-        sigma = meta.initial.sigma
-        scale = config.filter.initial_sigma_scale
+        sigma = initial_sigma(meta.initial.sigma, config.filter.initial_sigma_scale)
         blocks = common_blocks(
             imu,
-            np.multiply(sigma.velocity_mps, scale),
-            np.deg2rad(sigma.attitude_deg) * scale,
-            np.multiply(sigma.position_m, scale),
+            sigma["velocity_mps"],
+            np.deg2rad(sigma["attitude_deg"]),
+            sigma["position_m"],
         )
         self.layout = StateLayout(blocks).extended(b for own in self.plugin_blocks for b in own)
         axes = config.filter.invariant_error

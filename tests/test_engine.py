@@ -22,6 +22,7 @@ from fusion.error_model import ImuNoise
 from fusion.plugin import Measurement, PluginError
 from fusion.recording import (
     ImuData,
+    InitialSigma,
     PositionData,
     Recording,
     RecordingMeta,
@@ -284,14 +285,14 @@ def test_missing_imu_figures_are_an_error_naming_both_places() -> None:
         Engine(parse_config({"name": "free"}), bare)
 
 
-def test_a_zero_white_noise_figure_is_raised_to_the_floor_with_a_warning(
+def test_imu_figures_of_zero_are_raised_to_the_floor_with_a_warning(
     caplog: pytest.LogCaptureFixture,
 ) -> None:
     """An error-free accelerometer (seed 000's grade par5) must not leave the velocity without
-    process noise; a datasheet figure above the floor is taken as it is."""
+    process noise, nor a bias of σ 0 the covariance singular; a figure above the floor is taken
+    as it is."""
     from fusion.config import ImuTuning
-    from fusion.engine import WHITE_NOISE_FLOOR, resolve_imu_noise
-    from fusion.error_model import ImuNoise
+    from fusion.engine import IMU_FIGURE_FLOOR, resolve_imu_noise
     from fusion.recording import ImuSpec
 
     spec = ImuSpec(
@@ -300,15 +301,35 @@ def test_a_zero_white_noise_figure_is_raised_to_the_floor_with_a_warning(
     with caplog.at_level(logging.WARNING, logger="fusion.engine"):
         noise = resolve_imu_noise(ImuTuning(), spec)
     floor = ImuNoise.from_datasheet(
-        gyro_arw_deg_rth=0.0,
-        accel_vrw_mg_rthz=WHITE_NOISE_FLOOR["accel_vrw_mg_rthz"],
-        gyro_bias_deg_h=0.0,
-        accel_bias_mg=0.0,
+        **{k: v for k, v in IMU_FIGURE_FLOOR.items() if k != "gyro_arw_deg_rth"},
+        gyro_arw_deg_rth=2.0,
     )
-    assert noise.accel_vrw == pytest.approx(floor.accel_vrw) and noise.accel_vrw > 0.0
-    assert noise.gyro_arw == pytest.approx(2.0 * np.pi / 180.0 / 60.0)
+    assert floor.accel_vrw > 0.0 and floor.gyro_bias > 0.0 and floor.accel_bias > 0.0
+    assert noise == floor
     assert "imu.accel_vrw_mg_rthz: 0 is below any inertial sensor's" in caplog.text
     assert "gyro_arw" not in caplog.text
+
+
+def test_the_federated_filter_runs_from_a_start_known_exactly(tmp_path: Path) -> None:
+    """meta.yaml may state σ 0 for the initial state and for the turn-on biases (a simulator's
+    known start, a field left at 0): the filter takes its floors and every output is finite.
+    ``full_afkf_rts`` stopped with a traceback: the federated master's information fusion divided
+    by the zero variances."""
+    path = simulate("longwall-random-short", tmp_path / "rec", seed=1, overrides=["duration_s=60"])
+    rec = read_recording(path)
+    zero = InitialSigma(position_m=(0, 0, 0), velocity_mps=(0, 0, 0), attitude_deg=(0, 0, 0))
+    assert rec.meta.imu.spec is not None
+    spec = rec.meta.imu.spec.model_copy(update={"gyro_bias_deg_h": 0.0, "accel_bias_mg": 0.0})
+    meta = rec.meta.model_copy(
+        update={
+            "initial": rec.meta.initial.model_copy(update={"sigma": zero}),
+            "imu": rec.meta.imu.model_copy(update={"spec": spec}),
+        }
+    )
+    result = Engine(load_config(CONFIGS / "full_afkf_rts.yaml"), replace(rec, meta=meta)).run()
+    assert result.smoothed is not None
+    for track in (result.solution, result.smoothed):
+        assert np.isfinite(track.position).all() and np.isfinite(track.sigma_position).all()
 
 
 def test_bias_instability_fraction_follows_the_turn_on_bias_of_either_place() -> None:
