@@ -30,6 +30,7 @@ import math
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
+from typing import Any
 
 import numpy as np
 import scipy.linalg
@@ -235,6 +236,25 @@ def initial_sigma(sigma: InitialSigma, scale: float) -> dict[str, NDArray[np.flo
     return floored
 
 
+AIDING_STREAMS = ("odometer", "magnetometer", "uwb", "support", "position")
+"""The recording's optional streams that plugins read (file stems)."""
+
+
+def without_empty_streams(recording: Recording) -> Recording:
+    """``recording`` with every aiding stream that holds no reading (a file of its header only,
+    a sensor that recorded nothing, or every reading rejected by the screening) taken as absent,
+    with a warning: the plugins that read it are then left out as for a missing file."""
+    empty = [
+        name
+        for name in AIDING_STREAMS
+        if (data := getattr(recording, name)) is not None and data.t.size == 0
+    ]
+    for name in empty:
+        _log.warning("%s.csv holds no reading: taken as absent", name)
+    absent: dict[str, Any] = dict.fromkeys(empty)
+    return replace(recording, **absent) if empty else recording
+
+
 def present_plugins(
     config: FusionConfig, recording: Recording
 ) -> tuple[list[Plugin], dict[str, str], FusionConfig]:
@@ -394,6 +414,7 @@ class Engine:
         rate = config.streams.odometer_max_rate_hz
         if screened.odometer is not None and rate is not None:
             screened = replace(screened, odometer=combine_readings(screened.odometer, rate))
+        screened = without_empty_streams(screened)
         bridged, self.gap_bridges = bridge_imu_gaps(screened.imu, screened.imu_gaps)
         self.recording = replace(screened, imu=bridged) if self.gap_bridges else screened
         meta = recording.meta

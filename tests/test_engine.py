@@ -19,7 +19,7 @@ from fusion.cli import EXIT_BAD_INPUT, main
 from fusion.config import ConfigError, load_config, parse_config
 from fusion.engine import Engine
 from fusion.error_model import ImuNoise
-from fusion.plugin import Measurement, PluginError
+from fusion.plugin import Measurement, MissingStream, PluginError
 from fusion.recording import (
     ImuData,
     InitialSigma,
@@ -240,6 +240,27 @@ def test_the_flagship_runs_on_a_face_without_odometer_and_magnetometer(tmp_path:
         "magnetometer",
     ]
     assert result.smoothed is not None and np.isfinite(result.smoothed.position).all()
+
+
+def test_a_stream_without_readings_is_taken_as_absent(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    """A uwb.csv of its header only (a tag never in range) is a missing stream: ``full_afkf``
+    runs without its UWB plugin, and ``uwb_only`` refuses with a clear error instead of the
+    IndexError its least-squares solution raised on an empty stream."""
+    path = simulate("longwall-random-short", tmp_path / "rec", seed=1, overrides=["duration_s=60"])
+    rec = read_recording(path)
+    assert rec.uwb is not None
+    uwb = rec.uwb
+    silent = replace(uwb, t=uwb.t[:0], anchor_index=uwb.anchor_index[:0], range=uwb.range[:0])
+    rec = replace(rec, uwb=silent)
+    with caplog.at_level(logging.WARNING, logger="fusion.engine"):
+        result = Engine(load_config(CONFIGS / "full_afkf.yaml"), rec).run()
+    assert "uwb.csv holds no reading: taken as absent" in caplog.text
+    assert "uwb" not in result.innovations and any("(uwb)" in r for r in result.left_out)
+    assert np.isfinite(result.solution.position).all()
+    with pytest.raises(MissingStream, match="no plugin of the configuration has its stream"):
+        Engine(load_config(CONFIGS / "uwb_only.yaml"), rec)
 
 
 def test_python_api_accepts_paths_and_mappings(tmp_path: Path) -> None:
