@@ -241,18 +241,23 @@ AIDING_STREAMS = ("odometer", "magnetometer", "uwb", "support", "position")
 
 
 def without_empty_streams(recording: Recording) -> Recording:
-    """``recording`` with every aiding stream that holds no reading (a file of its header only,
-    a sensor that recorded nothing, or every reading rejected by the screening) taken as absent,
-    with a warning: the plugins that read it are then left out as for a missing file."""
-    empty = [
+    """``recording`` with every aiding stream too short to use taken as absent, with a warning:
+    a file of its header only (a sensor that recorded nothing, every reading rejected by the
+    screening), or a single reading of a sampled sensor, which has no interval to be the mean
+    over (the format's odometer reading is the mean speed since the previous one). The plugins
+    that read it are then left out as for a missing file. One AFC push is a push: support.csv
+    is absent only when empty."""
+    short = [
         name
         for name in AIDING_STREAMS
-        if (data := getattr(recording, name)) is not None and data.t.size == 0
+        if (data := getattr(recording, name)) is not None
+        and data.t.size < (1 if name == "support" else 2)
     ]
-    for name in empty:
-        _log.warning("%s.csv holds no reading: taken as absent", name)
-    absent: dict[str, Any] = dict.fromkeys(empty)
-    return replace(recording, **absent) if empty else recording
+    for name in short:
+        count = getattr(recording, name).t.size
+        _log.warning("%s.csv holds %d reading(s): taken as absent", name, count)
+    absent: dict[str, Any] = dict.fromkeys(short)
+    return replace(recording, **absent) if short else recording
 
 
 def present_plugins(

@@ -242,12 +242,14 @@ def test_the_flagship_runs_on_a_face_without_odometer_and_magnetometer(tmp_path:
     assert result.smoothed is not None and np.isfinite(result.smoothed.position).all()
 
 
-def test_a_stream_without_readings_is_taken_as_absent(
+def test_a_stream_too_short_to_use_is_taken_as_absent(
     tmp_path: Path, caplog: pytest.LogCaptureFixture
 ) -> None:
     """A uwb.csv of its header only (a tag never in range) is a missing stream: ``full_afkf``
     runs without its UWB plugin, and ``uwb_only`` refuses with a clear error instead of the
-    IndexError its least-squares solution raised on an empty stream."""
+    IndexError its least-squares solution raised on an empty stream. A single odometer reading,
+    which has no interval, is absent too (it stopped the odometer plugin with 'cannot convert
+    float NaN to integer')."""
     path = simulate("longwall-random-short", tmp_path / "rec", seed=1, overrides=["duration_s=60"])
     rec = read_recording(path)
     assert rec.uwb is not None
@@ -256,11 +258,16 @@ def test_a_stream_without_readings_is_taken_as_absent(
     rec = replace(rec, uwb=silent)
     with caplog.at_level(logging.WARNING, logger="fusion.engine"):
         result = Engine(load_config(CONFIGS / "full_afkf.yaml"), rec).run()
-    assert "uwb.csv holds no reading: taken as absent" in caplog.text
+    assert "uwb.csv holds 0 reading(s): taken as absent" in caplog.text
     assert "uwb" not in result.innovations and any("(uwb)" in r for r in result.left_out)
     assert np.isfinite(result.solution.position).all()
     with pytest.raises(MissingStream, match="no plugin of the configuration has its stream"):
         Engine(load_config(CONFIGS / "uwb_only.yaml"), rec)
+    assert rec.odometer is not None
+    one = replace(rec.odometer, t=rec.odometer.t[:1], speed=rec.odometer.speed[:1])
+    with caplog.at_level(logging.WARNING, logger="fusion.engine"):
+        Engine(load_config(CONFIGS / "sins_od_cpoem.yaml"), replace(rec, odometer=one))
+    assert "odometer.csv holds 1 reading(s): taken as absent" in caplog.text
 
 
 def test_python_api_accepts_paths_and_mappings(tmp_path: Path) -> None:

@@ -201,7 +201,14 @@ from fusion.face import FaceLine
 from fusion.innovations import InnovationLog
 from fusion.kalman import chi2_threshold
 from fusion.lock import Reacquisition
-from fusion.plugin import Measurement, MeasurementContext, MissingStream, Plugin, PluginOptions
+from fusion.plugin import (
+    Measurement,
+    MeasurementContext,
+    MissingStream,
+    Plugin,
+    PluginError,
+    PluginOptions,
+)
 from fusion.recording import Recording, UwbData, UwbMeta
 from fusion.solution import Solution
 
@@ -1177,7 +1184,7 @@ def least_squares_solution(
         out_cov.append(cov)
         out_w.append(1.0 / float(np.trace(cov)))
     if not out_t:
-        raise ValueError(
+        raise PluginError(
             f"UWB least squares: no window of {opts.window_s} s of uwb.csv in"
             f" {recording.meta.name!r} holds ranges to {opts.min_anchors} anchors with a"
             " converged fix; widen window_s or lower min_anchors"
