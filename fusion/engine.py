@@ -240,24 +240,23 @@ AIDING_STREAMS = ("odometer", "magnetometer", "uwb", "support", "position")
 """The recording's optional streams that plugins read (file stems)."""
 
 
-def without_empty_streams(recording: Recording) -> Recording:
-    """``recording`` with every aiding stream too short to use taken as absent, with a warning:
-    a file of its header only (a sensor that recorded nothing, every reading rejected by the
-    screening), or a single reading of a sampled sensor, which has no interval to be the mean
-    over (the format's odometer reading is the mean speed since the previous one). The plugins
-    that read it are then left out as for a missing file. One AFC push is a push: support.csv
-    is absent only when empty."""
-    short = [
+def without_unusable_streams(recording: Recording) -> Recording:
+    """``recording`` with every aiding stream it cannot use taken as absent, with a warning: a
+    file of its header only (a sensor that recorded nothing, or every reading rejected by the
+    screening), and an odometer.csv of one reading, which has no interval to be the mean speed
+    over (the format's reading is the mean since the previous one). The plugins that read it are
+    then left out as for a missing file."""
+    unusable = [
         name
         for name in AIDING_STREAMS
         if (data := getattr(recording, name)) is not None
-        and data.t.size < (1 if name == "support" else 2)
+        and data.t.size < (2 if name == "odometer" else 1)
     ]
-    for name in short:
+    for name in unusable:
         count = getattr(recording, name).t.size
         _log.warning("%s.csv holds %d reading(s): taken as absent", name, count)
-    absent: dict[str, Any] = dict.fromkeys(short)
-    return replace(recording, **absent) if short else recording
+    absent: dict[str, Any] = dict.fromkeys(unusable)
+    return replace(recording, **absent) if unusable else recording
 
 
 def present_plugins(
@@ -419,7 +418,7 @@ class Engine:
         rate = config.streams.odometer_max_rate_hz
         if screened.odometer is not None and rate is not None:
             screened = replace(screened, odometer=combine_readings(screened.odometer, rate))
-        screened = without_empty_streams(screened)
+        screened = without_unusable_streams(screened)
         bridged, self.gap_bridges = bridge_imu_gaps(screened.imu, screened.imu_gaps)
         self.recording = replace(screened, imu=bridged) if self.gap_bridges else screened
         meta = recording.meta
