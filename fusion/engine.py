@@ -85,7 +85,7 @@ from fusion.plugin import (
 )
 from fusion.recording import ImuSpec, InitialSigma, Recording, check_recording
 from fusion.rows import RowBuffer
-from fusion.screening import ScreeningReport, screen_recording
+from fusion.screening import STREAMS, ScreeningReport, screen_recording
 from fusion.smoother import WindowedSmoother
 from fusion.solution import Solution
 from fusion.state_history import StateHistory, StateRecorder
@@ -236,10 +236,6 @@ def initial_sigma(sigma: InitialSigma, scale: float) -> dict[str, NDArray[np.flo
     return floored
 
 
-AIDING_STREAMS = ("odometer", "magnetometer", "uwb", "support", "position")
-"""The recording's optional streams that plugins read (file stems)."""
-
-
 def without_unusable_streams(recording: Recording) -> Recording:
     """``recording`` with every aiding stream it cannot use taken as absent, with a warning: a
     file of its header only (a sensor that recorded nothing, or every reading rejected by the
@@ -248,7 +244,7 @@ def without_unusable_streams(recording: Recording) -> Recording:
     then left out as for a missing file."""
     unusable = [
         name
-        for name in AIDING_STREAMS
+        for name in STREAMS[1:]  # the aiding streams, after the IMU
         if (data := getattr(recording, name)) is not None
         and data.t.size < (2 if name == "odometer" else 1)
     ]
