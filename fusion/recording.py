@@ -1233,13 +1233,21 @@ def _rate_problem(
     )
 
 
+GAP_TOLERANCE = 1e-3
+"""Share of a sample interval by which a gap may exceed :data:`MAX_IMU_GAP_INTERVALS` and still
+be that many intervals: time stamps are rounded decimals (a 4-sample gap at t = 30 s, 29.99 to
+30.04, is 5.0000000000001 median intervals of 100 Hz), and at Unix times a double resolves
+2.4·10⁻⁷ s, 2·10⁻⁵ of a 100-Hz interval."""
+
+
 def _imu_gaps(t: FloatArray) -> tuple[IntArray, float]:
     """Indices i with t[i+1] - t[i] longer than the gap threshold, and that threshold."""
     median = _median_interval(t)
     if median is None:
         return np.empty(0, dtype=np.int64), math.inf
     limit = MAX_IMU_GAP_INTERVALS * median
-    return np.flatnonzero(np.diff(t) > limit).astype(np.int64), limit
+    longer = np.diff(t) > limit + GAP_TOLERANCE * median
+    return np.flatnonzero(longer).astype(np.int64), limit
 
 
 # --------------------------------------------------------------------------------------------

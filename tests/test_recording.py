@@ -554,6 +554,21 @@ def test_short_gap_is_not_a_gap(rec: Path) -> None:
     assert validate_recording(rec) == []
 
 
+@pytest.mark.parametrize("offset", [0.0, 1.7e9])
+def test_a_gap_of_five_intervals_between_rounded_stamps_is_not_longer(
+    rec: Path, offset: float
+) -> None:
+    """A minute at 100 Hz, its stamps written to the hundredth of a second as a logger writes
+    them, with 4 samples missing at 30 s (29.99 to 30.04): the gap is 5 sample intervals, and
+    the reader refused it as longer, by the rounding of the decimals (and, at Unix times, of
+    the doubles)."""
+    t = np.round(np.arange(6000) * 0.01, 2)
+    t = np.delete(t, np.arange(3000, 3004)) + offset
+    rows = [f"{x:.2f},0,0,0,0,0,9.8" for x in t]
+    (rec / "imu.csv").write_text("t,wx,wy,wz,fx,fy,fz\n" + "\n".join(rows) + "\n")
+    assert not [p for p in validate_recording(rec) if p.file == "imu.csv"]
+
+
 def test_imu_needs_two_samples(rec: Path) -> None:
     path = rec / "imu.csv"
     path.write_text("\n".join(path.read_text().split("\n")[:2]) + "\n")
