@@ -61,7 +61,8 @@ def _within(
 
 
 class ImuTuning(_Strict):
-    """IMU noise figures in datasheet units; ``None`` takes the recording's ``imu.spec``."""
+    """IMU noise figures in datasheet units; ``None`` takes the recording's ``imu.spec``, and
+    where that lacks the figure too, :data:`fusion.engine.ASSUMED_IMU_SPEC` (with a warning)."""
 
     gyro_bias_deg_h: float | None = _within(
         None,

@@ -86,6 +86,7 @@ from fusion.plugin import (
 from fusion.recording import ImuSpec, InitialSigma, Recording, check_recording
 from fusion.rows import RowBuffer
 from fusion.screening import STREAMS, ScreeningReport, screen_recording
+from fusion.sim.sensors import IMU_GRADES, spec_for_meta
 from fusion.smoother import WindowedSmoother
 from fusion.solution import Solution
 from fusion.state_history import StateHistory, StateRecorder
@@ -169,27 +170,48 @@ navigation-grade gyrocompass's 0.01°): meta.yaml may state a start known exactl
 singular covariance cannot be inverted by the federated master."""
 
 
-def resolve_imu_noise(tuning: ImuTuning, spec: ImuSpec | None) -> ImuNoise:
-    """IMU noise from the configuration, falling back to the recording's datasheet figures; an
-    ``imu.bias_instability_fraction`` scales the turn-on biases so resolved into the in-run
-    instability. Figures below :data:`IMU_FIGURE_FLOOR` are raised to it, with a warning."""
-    figures = {}
-    missing = []
-    for key in ("gyro_arw_deg_rth", "accel_vrw_mg_rthz", "gyro_bias_deg_h", "accel_bias_mg"):
-        value = getattr(tuning, key)
-        if value is None and spec is not None:
-            value = getattr(spec, key)
+ASSUMED_IMU_SPEC = spec_for_meta(IMU_GRADES["mti-g-700"])
+"""The datasheet figures taken for a figure that neither the configuration (``imu.KEY``) nor
+meta.yaml's ``imu.spec`` gives (the format makes the datasheet optional): the Xsens MTi-G-700's,
+the shearer IMU of seed 000 (Table 1: 720 deg/h, 0.6 deg/√h, 3 mg, 0.08 mg/√Hz), an
+industrial MEMS unit of the class a shearer carries. Without them every shipped configuration
+refused such a recording; with them it runs, and a warning names each figure taken."""
+
+
+def with_imu_spec(recording: Recording, tuning: ImuTuning) -> Recording:
+    """``recording`` whose ``imu.spec`` holds all four datasheet figures, which the filter's
+    noise and the plugins' thresholds (ZUPT, ZARU) are derived from: a figure meta.yaml lacks is
+    the configuration's ``imu.KEY`` if set, else :data:`ASSUMED_IMU_SPEC`'s, with a warning."""
+    meta = recording.meta
+    stated = meta.imu.spec.model_dump() if meta.imu.spec is not None else {}
+    figures = {key: stated.get(key) for key in ASSUMED_IMU_SPEC}
+    for key, value in figures.items():
         if value is None:
-            missing.append(key)
-        figures[key] = value
-    if missing:
-        raise ConfigError(
-            "\n".join(
-                f"config key imu.{k}: not set, and the recording's meta.yaml has no imu.spec.{k}"
-                " to default to (give the datasheet figure in either place)"
-                for k in missing
-            )
+            figures[key] = getattr(tuning, key)
+    assumed = [key for key, value in figures.items() if value is None]
+    if assumed:
+        _log.warning(
+            "neither meta.yaml's imu.spec nor the configuration's imu section gives %s: taking"
+            " %s, an industrial MEMS unit's (fusion.engine.ASSUMED_IMU_SPEC)",
+            ", ".join(assumed),
+            ", ".join(f"{key} {ASSUMED_IMU_SPEC[key]:g}" for key in assumed),
         )
+        figures.update({key: ASSUMED_IMU_SPEC[key] for key in assumed})
+    if figures == stated:
+        return recording
+    imu = meta.imu.model_copy(update={"spec": ImuSpec(**figures)})
+    return replace(recording, meta=meta.model_copy(update={"imu": imu}))
+
+
+def resolve_imu_noise(tuning: ImuTuning, spec: ImuSpec) -> ImuNoise:
+    """IMU noise from the configuration, falling back to the datasheet figures ``spec`` (all
+    four given: :func:`with_imu_spec`); an ``imu.bias_instability_fraction`` scales the turn-on
+    biases so resolved into the in-run instability. Figures below :data:`IMU_FIGURE_FLOOR` are
+    raised to it, with a warning."""
+    figures = {}
+    for key in ASSUMED_IMU_SPEC:
+        value = getattr(tuning, key)
+        figures[key] = float(getattr(spec, key) if value is None else value)
     for key in ("gyro_arw_deg_rth", "accel_vrw_mg_rthz"):
         figures[key] *= tuning.noise_scale
     for key, floor in IMU_FIGURE_FLOOR.items():
@@ -410,6 +432,7 @@ class Engine:
         self._at_bound: dict[str, tuple[KalmanFilter, int]] = {}
         """States held at their bound in this run, by label: their filter and index."""
         recording = check_recording(recording, bridge_imu_gaps=config.bridge_imu_gaps)
+        recording = with_imu_spec(recording, config.imu)
         screened, self.screening = screen_recording(recording, config.screening)
         rate = config.streams.odometer_max_rate_hz
         if screened.odometer is not None and rate is not None:
@@ -430,6 +453,7 @@ class Engine:
         self.plugin_blocks = [p.state_blocks() for p in self.plugins]
         counts = [p.stored_errors() for p in self.plugins]
         self.stored_error_offsets = np.concatenate([[0], np.cumsum(counts)]).astype(np.intp)
+        assert meta.imu.spec is not None  # with_imu_spec
         imu = resolve_imu_noise(config.imu, meta.imu.spec)
         self.imu_noise = imu
         sigma = initial_sigma(meta.initial.sigma, config.filter.initial_sigma_scale)

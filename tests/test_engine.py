@@ -305,12 +305,53 @@ def test_imu_file_is_read_relative_to_the_config_and_overridden_beside_it(tmp_pa
         load_config(path)
 
 
-def test_missing_imu_figures_are_an_error_naming_both_places() -> None:
-    rec = make_recording(5, duration=10.0, fixes=False)
+@pytest.fixture(scope="module")
+def short_world(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A 60-s random world with every sensor."""
+    out = tmp_path_factory.mktemp("world") / "rec"
+    return simulate("longwall-random-short", out, seed=1, overrides=["duration_s=60"])
+
+
+@pytest.mark.parametrize(
+    "name", [p.stem for p in sorted(CONFIGS.glob("*.yaml")) if not p.stem.startswith("real_")]
+)
+def test_every_shipped_configuration_runs_without_a_datasheet(
+    name: str, short_world: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    """meta.yaml's ``imu.spec`` is optional in the format; a recording without it was refused by
+    every shipped configuration (the filter's noise, the ZUPT's thresholds and the ZARU's noise
+    all come from it). The assumed industrial MEMS figures are taken, with a warning naming
+    them, and the run is finite."""
+    rec = read_recording(short_world)
     meta = rec.meta.model_copy(update={"imu": rec.meta.imu.model_copy(update={"spec": None})})
-    bare = Recording(path=None, meta=meta, imu=rec.imu)
-    with pytest.raises(ConfigError, match=r"imu\.gyro_arw_deg_rth.*imu\.spec\.gyro_arw_deg_rth"):
-        Engine(parse_config({"name": "free"}), bare)
+    with caplog.at_level(logging.WARNING, logger="fusion.engine"):
+        result = Engine(load_config(CONFIGS / f"{name}.yaml"), replace(rec, meta=meta)).run()
+    assert "gyro_arw_deg_rth 0.6" in caplog.text and "accel_vrw_mg_rthz 0.08" in caplog.text
+    assert np.isfinite(result.solution.position).all()
+
+
+def test_a_figure_the_datasheet_lacks_is_the_configurations_or_the_assumed_one(
+    caplog: pytest.LogCaptureFixture,
+) -> None:
+    """Where meta.yaml's ``imu.spec`` lacks a figure, the configuration's ``imu`` figure fills
+    it, else :data:`fusion.engine.ASSUMED_IMU_SPEC`'s, and only an assumed figure is warned
+    about; a stated figure is kept."""
+    from fusion.config import ImuTuning
+    from fusion.engine import ASSUMED_IMU_SPEC, with_imu_spec
+    from fusion.recording import ImuSpec
+
+    rec = make_recording(5, duration=10.0, fixes=False)
+    partial = ImuSpec(gyro_bias_deg_h=50.0)
+    meta = rec.meta.model_copy(update={"imu": rec.meta.imu.model_copy(update={"spec": partial})})
+    with caplog.at_level(logging.WARNING, logger="fusion.engine"):
+        filled = with_imu_spec(replace(rec, meta=meta), ImuTuning(accel_bias_mg=7.0))
+    spec = filled.meta.imu.spec
+    assert spec is not None
+    assert (spec.gyro_bias_deg_h, spec.accel_bias_mg) == (50.0, 7.0)
+    assert spec.gyro_arw_deg_rth == ASSUMED_IMU_SPEC["gyro_arw_deg_rth"]
+    assert spec.accel_vrw_mg_rthz == ASSUMED_IMU_SPEC["accel_vrw_mg_rthz"]
+    assert "gives gyro_arw_deg_rth, accel_vrw_mg_rthz:" in caplog.text
+    assert with_imu_spec(filled, ImuTuning()) is filled
 
 
 def test_imu_figures_of_zero_are_raised_to_the_floor_with_a_warning(
