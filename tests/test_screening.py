@@ -359,8 +359,8 @@ def face(tmp_path_factory: pytest.TempPathFactory) -> Recording:
 
 def _config(with_position: bool) -> FusionConfig:
     data = load_config(CONFIGS / "full_afkf.yaml").model_dump()
-    if with_position:  # full_afkf has no position plugin
-        data["plugins"].append({"type": "position"})
+    if not with_position:  # the face's fixes left unused
+        data["plugins"] = [p for p in data["plugins"] if p["type"] != "position"]
     return parse_config(data)
 
 
