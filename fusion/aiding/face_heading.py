@@ -113,7 +113,9 @@ class FaceHeading(Plugin):
         line = FaceLine.from_meta(recording.meta.face)
         if line is None:
             _log.warning(
-                "plugin %r: meta.yaml has no face.ends_enu_m, so no face heading", self.name
+                "plugin %r: meta.yaml has no face.ends_enu_m, or its two ends coincide, so no"
+                " face heading",
+                self.name,
             )
             return None
         azimuth = line.azimuth
