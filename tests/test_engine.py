@@ -223,8 +223,9 @@ def test_a_plugin_whose_sensor_is_missing_is_left_out_and_said_so(
 
 def test_the_flagship_runs_on_a_face_without_odometer_and_magnetometer(tmp_path: Path) -> None:
     """``full_afkf_rts`` on a recording with UWB alone among its aiding files: the odometer,
-    the ZUPT (it needs the encoder's stops), CPOEM and the magnetometer are left out, and the
-    online smoother, whose windows CPOEM ended, smooths the whole recording instead."""
+    the ZUPT (it needs the encoder's stops), CPOEM, the magnetometer and the position fixes are
+    left out, and the online smoother, whose windows CPOEM ended, smooths the whole recording
+    instead."""
     path = simulate("longwall-random-short", tmp_path / "rec", seed=1, overrides=["duration_s=60"])
     for name in ("odometer.csv", "magnetometer.csv"):
         (path / name).unlink()
@@ -238,6 +239,7 @@ def test_the_flagship_runs_on_a_face_without_odometer_and_magnetometer(tmp_path:
         "zupt",
         "cpoem",
         "magnetometer",
+        "position",
     ]
     assert result.smoothed is not None and np.isfinite(result.smoothed.position).all()
 
