@@ -244,16 +244,22 @@ def test_the_flagship_runs_on_a_face_without_odometer_and_magnetometer(tmp_path:
     assert result.smoothed is not None and np.isfinite(result.smoothed.position).all()
 
 
+@pytest.fixture(scope="module")
+def short_world(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A 60-s random world with every sensor."""
+    out = tmp_path_factory.mktemp("world") / "rec"
+    return simulate("longwall-random-short", out, seed=1, overrides=["duration_s=60"])
+
+
 def test_a_stream_too_short_to_use_is_taken_as_absent(
-    tmp_path: Path, caplog: pytest.LogCaptureFixture
+    short_world: Path, caplog: pytest.LogCaptureFixture
 ) -> None:
     """A uwb.csv of its header only (a tag never in range) is a missing stream: ``full_afkf``
     runs without its UWB plugin, and ``uwb_only`` refuses with a clear error instead of the
     IndexError its least-squares solution raised on an empty stream. A single odometer reading,
     which has no interval, is absent too (it stopped the odometer plugin with 'cannot convert
     float NaN to integer')."""
-    path = simulate("longwall-random-short", tmp_path / "rec", seed=1, overrides=["duration_s=60"])
-    rec = read_recording(path)
+    rec = read_recording(short_world)
     assert rec.uwb is not None
     uwb = rec.uwb
     silent = replace(uwb, t=uwb.t[:0], anchor_index=uwb.anchor_index[:0], range=uwb.range[:0])
@@ -305,13 +311,6 @@ def test_imu_file_is_read_relative_to_the_config_and_overridden_beside_it(tmp_pa
     path.write_text("name: x\nimu: {file: imu/grade.yaml}\n")
     with pytest.raises(ConfigError, match=r"c\.yaml: imu\.file .imu/grade\.yaml. must hold"):
         load_config(path)
-
-
-@pytest.fixture(scope="module")
-def short_world(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """A 60-s random world with every sensor."""
-    out = tmp_path_factory.mktemp("world") / "rec"
-    return simulate("longwall-random-short", out, seed=1, overrides=["duration_s=60"])
 
 
 @pytest.mark.parametrize(
@@ -381,13 +380,12 @@ def test_imu_figures_of_zero_are_raised_to_the_floor_with_a_warning(
     assert "gyro_arw" not in caplog.text
 
 
-def test_the_federated_filter_runs_from_a_start_known_exactly(tmp_path: Path) -> None:
+def test_the_federated_filter_runs_from_a_start_known_exactly(short_world: Path) -> None:
     """meta.yaml may state σ 0 for the initial state and for the turn-on biases (a simulator's
     known start, a field left at 0): the filter takes its floors and every output is finite.
     ``full_afkf_rts`` stopped with a traceback: the federated master's information fusion divided
     by the zero variances."""
-    path = simulate("longwall-random-short", tmp_path / "rec", seed=1, overrides=["duration_s=60"])
-    rec = read_recording(path)
+    rec = read_recording(short_world)
     zero = InitialSigma(position_m=(0, 0, 0), velocity_mps=(0, 0, 0), attitude_deg=(0, 0, 0))
     assert rec.meta.imu.spec is not None
     spec = rec.meta.imu.spec.model_copy(update={"gyro_bias_deg_h": 0.0, "accel_bias_mg": 0.0})
