@@ -174,8 +174,8 @@ ASSUMED_IMU_SPEC = spec_for_meta(IMU_GRADES["mti-g-700"])
 """The datasheet figures taken for a figure that neither the configuration (``imu.KEY``) nor
 meta.yaml's ``imu.spec`` gives (the format makes the datasheet optional): the Xsens MTi-G-700's,
 the shearer IMU of seed 000 (Table 1: 720 deg/h, 0.6 deg/√h, 3 mg, 0.08 mg/√Hz), an
-industrial MEMS unit of the class a shearer carries. Without them every shipped configuration
-refused such a recording; with them it runs, and a warning names each figure taken."""
+industrial MEMS unit of the class a shearer carries; a warning names each figure taken
+(docs/design/2026-11-30-unusual-recordings.md)."""
 
 
 def with_imu_spec(recording: Recording, tuning: ImuTuning) -> Recording:

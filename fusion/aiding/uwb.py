@@ -477,12 +477,9 @@ class UwbRanges(Plugin):
         left out in turn (receiver autonomous integrity monitoring: the sum-of-squares test and
         exclusion of Parkinson & Axelrad, *Navigation* 35(2), 1988): the fix of the others is
         taken if it is the one subset that fits. None fitting, or more than one (a bad anchor
-        absorbed by three anchors and the face's height), no fix is given. One anchor surveyed
-        5 m from where it stands read its ranges short of a filter that was right, and the fix
-        of all four anchors of that face end, 3.5 m off at a σ of 0.15 m (its χ² 970 on 42
-        degrees of freedom), restarted the filter there, again every time the machine came
-        back (``full_ckf`` 2.16 m horizontal RMS against 0.012 m, 600 s of random world 3);
-        without that anchor the fit is consistent (χ² 50 on 31) and 0.2 m from the tag.
+        absorbed by three anchors and the face's height), no fix is given: an anchor surveyed
+        metres from where it stands must not restart a filter that is right
+        (docs/design/2026-11-30-unusual-recordings.md).
         """
         lo = int(np.searchsorted(self.data.t, t0, side="right"))
         hi = int(np.searchsorted(self.data.t, t1, side="right"))
