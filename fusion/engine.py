@@ -992,6 +992,8 @@ class Engine:
         m = plugin.measure(index, ctx)
         if m is None:
             return False
+        if m.fault is not None:
+            bank.faults.append(FaultEvent(t, plugin.name, math.nan, math.nan, *m.fault))
         if not (np.isfinite(m.z).all() and np.isfinite(m.H).all() and np.isfinite(m.R).all()):
             raise PluginError(
                 f"plugin {plugin.name!r} returned a measurement with a NaN or an infinity in z,"

@@ -7,6 +7,7 @@ import hashlib
 import json
 import sys
 import time
+from collections import Counter
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from datetime import UTC, datetime, timedelta
@@ -206,7 +207,7 @@ def summary(result: RunResult, recording: Recording) -> str:
             f"re-admissions, {actions.count(JUMP)} state jumps taken in, "
             f"{actions.count(LOST_LOCK)} lost locks, {actions.count(REACQUIRE)} re-acquisitions,"
             f" {actions.count(WIDEN)} widenings, {actions.count(BOUND)} estimates held at their"
-            " bounds (faults.csv)"
+            f" bounds{_other_actions(actions)} (faults.csv)"
         )
     if result.smoother_rejected:
         lines.append(
@@ -233,3 +234,13 @@ def summary(result: RunResult, recording: Recording) -> str:
                 f" {m['rms_3d']:.3f} m, max horizontal {m['horizontal_max']:.3f} m"
             )
     return "\n".join(lines)
+
+
+_ENGINE_ACTIONS = (ISOLATE, READMIT, JUMP, LOST_LOCK, REACQUIRE, WIDEN, BOUND)
+
+
+def _other_actions(actions: list[str]) -> str:
+    """The count of each other ``faults.csv`` action (one a plugin's own test wrote,
+    :attr:`fusion.plugin.Measurement.fault`, e.g. ``exclude anchor``), for the summary."""
+    counts = Counter(a for a in actions if a not in _ENGINE_ACTIONS)
+    return "".join(f", {n} × {action}" for action, n in sorted(counts.items()))

@@ -103,6 +103,10 @@ class Measurement:
     constraint. With ``filter.invariant_error`` the engine takes ``δv = ξ_v + v × ξ_φ`` at this
     velocity (:mod:`fusion.invariant_error`), so that a source that cannot see a turn finds no
     heading column; None: the nominal velocity."""
+    fault: tuple[str, str] | None = None
+    """A ``faults.csv`` line (action, reason) of the plugin's own test at this epoch: one of
+    its sensor's parts taken out of the updates or let back in (an anchor that disagrees with
+    the others, :class:`fusion.aiding.uwb.UwbRanges`)."""
 
     def stacked_with(self, other: Measurement) -> Measurement:
         """This measurement and ``other`` as one (rows appended, independent noise apart from
@@ -119,6 +123,7 @@ class Measurement:
             _stacked_noise(self, other),
             self.consider,
             self.velocity_at if self.velocity_at is not None else other.velocity_at,
+            self.fault if self.fault is not None else other.fault,
         )
 
 

@@ -652,10 +652,11 @@ def _nlos_rows(recording: Recording, result: RunResult) -> tuple[np.ndarray, np.
 
 
 def test_nlos_ranges_are_gated_alone(nlos_recording: Recording) -> None:
-    """The χ² gate alone (the NLOS test off) rejects the NLOS ranges of A2 and almost nothing
-    else; the position stays consistent. Ungated, the same ranges drag the solution by
-    decimetres."""
-    gated = Engine(_config(gate_probability=0.999, nlos_test=False), nlos_recording).run()
+    """The χ² gate alone (the NLOS test and the anchor exclusion off) rejects the NLOS ranges
+    of A2 and almost nothing else; the position stays consistent. Ungated, the same ranges
+    drag the solution by decimetres."""
+    alone = {"nlos_test": False, "anchor_exclusion": False}
+    gated = Engine(_config(gate_probability=0.999, **alone), nlos_recording).run()
     accepted, nlos = _nlos_rows(nlos_recording, gated)
     err, sigma = _errors(gated.solution, nlos_recording)
     print(
@@ -668,7 +669,7 @@ def test_nlos_ranges_are_gated_alone(nlos_recording: Recording) -> None:
     assert np.sqrt(np.mean((err / sigma) ** 2)) < 1.5
     assert 0.7 <= gated.innovations["uwb"].whitened_rms() <= 1.3
 
-    ungated = Engine(_config(nlos_test=False), nlos_recording).run()
+    ungated = Engine(_config(**alone), nlos_recording).run()
     err_ungated, _ = _errors(ungated.solution, nlos_recording)
     print(f"ungated max |err| {np.round(np.max(np.abs(err_ungated), axis=0), 3)}")
     assert np.max(np.abs(err_ungated)) > 0.2 > np.max(np.abs(err))
@@ -1015,29 +1016,64 @@ def test_least_squares_gives_no_fix_where_the_tag_cannot_be() -> None:
     assert counts[0, 1] >= 0.9 * counts[1, 1], counts
 
 
-def test_one_anchor_surveyed_metres_off_does_not_move_the_filter(tmp_path: Path) -> None:
+@pytest.mark.parametrize("name", ["sins_uwb", "full_afkf"])
+def test_one_anchor_surveyed_metres_off_costs_its_own_ranges_only(
+    tmp_path: Path, name: str
+) -> None:
     """One anchor of a face end stands 5 m from where meta.yaml says. Its ranges read short of
-    a filter that is right, which the plugin takes for a filter on a wrong solution, and the
+    a filter that is right, which the plugin took for a filter on a wrong solution, and the
     fix of all that end's anchors, metres off at a σ of centimetres, restarted the filter
-    there (``sins_uwb`` 3.7 m horizontal RMS on this world, 0.035 m now). A fix is taken only
-    from ranges that fit it, the one consistent subset without an anchor otherwise
-    (``UwbRanges._fix``)."""
+    there (``sins_uwb`` 3.7 m horizontal RMS on this world). A fix is taken only from ranges
+    that fit it, the one consistent subset without an anchor otherwise (``UwbRanges._raim``).
+    Gated one by one, the anchor's ranges also isolated the federated filter's UWB local for
+    good (``full_afkf`` 0.94 m on a 600-s world of this seed): now the anchor is excluded
+    (a ``faults.csv`` line) and nothing is isolated."""
     import yaml
 
     path = simulate("longwall-random", tmp_path / "rec", seed=3, overrides=["duration_s=150"])
-    config = load_config(Path(__file__).resolve().parents[1] / "configs" / "sins_uwb.yaml")
+    config = load_config(Path(__file__).resolve().parents[1] / "configs" / f"{name}.yaml")
 
-    def horizontal_rms() -> float:
+    def run() -> tuple[float, RunResult]:
         rec = read_recording(path)
         result = Engine(config, rec).run()
         assert rec.truth is not None
         inside, pos, *_ = interpolate_truth(rec.truth, result.solution.t)
         error = result.solution.position[inside, :2] - pos[:, :2]
-        return float(np.sqrt(np.mean(np.sum(error**2, axis=1))))
+        return float(np.sqrt(np.mean(np.sum(error**2, axis=1)))), result
 
-    clean = horizontal_rms()
+    clean, _ = run()
     meta = yaml.safe_load((path / "meta.yaml").read_text())
     first = sorted(meta["uwb"]["anchors"])[0]
     meta["uwb"]["anchors"][first][0] += 5.0
     (path / "meta.yaml").write_text(yaml.safe_dump(meta, sort_keys=False))
-    assert horizontal_rms() <= clean + 0.05
+    off, result = run()
+    assert off <= clean + 0.05
+    assert not [e for e in result.faults if e.action == "isolate"]
+    excluded = [e for e in result.faults if e.action == uwb_module.EXCLUDE]
+    assert excluded and all(e.reason.startswith(f"anchor {first}:") for e in excluded)
+
+
+def test_an_anchor_off_for_a_while_is_excluded_and_let_back_in(tmp_path: Path) -> None:
+    """One anchor's ranges read 2 m short from 20 s to 60 s (an anchor knocked and put back):
+    it is excluded while its ranges contradict the others' and let back in once they fit
+    again, and the track stays as good as without the fault."""
+    path = simulate("longwall-random", tmp_path / "rec", seed=3, overrides=["duration_s=150"])
+    config = load_config(Path(__file__).resolve().parents[1] / "configs" / "full_ckf.yaml")
+    rec = read_recording(path)
+    assert rec.uwb is not None and rec.truth is not None
+    knocked = (rec.uwb.anchor_index == 0) & (rec.uwb.t >= 20.0) & (rec.uwb.t < 60.0)
+    faulty = replace(rec, uwb=replace(rec.uwb, range=rec.uwb.range - 2.0 * knocked))
+
+    def horizontal_rms(result: RunResult) -> float:
+        assert rec.truth is not None
+        inside, pos, *_ = interpolate_truth(rec.truth, result.solution.t)
+        error = result.solution.position[inside, :2] - pos[:, :2]
+        return float(np.sqrt(np.mean(np.sum(error**2, axis=1))))
+
+    clean = horizontal_rms(Engine(config, rec).run())
+    result = Engine(config, faulty).run()
+    anchor = rec.uwb.anchor_ids[0]
+    rows = [(e.t, e.action) for e in result.faults if e.reason.startswith(f"anchor {anchor}:")]
+    assert [a for _, a in rows] == [uwb_module.EXCLUDE, uwb_module.INCLUDE]
+    assert 20.0 < rows[0][0] < 25.0 and 60.0 < rows[1][0] < 65.0
+    assert horizontal_rms(result) <= clean + 0.01

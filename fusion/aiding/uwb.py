@@ -60,6 +60,15 @@ Tightly coupled ranges (:class:`UwbRanges`)
     grown without them, makes single NLOS ranges look like 2σ ones; after the NLOS it takes
     some ``NLOS_CAP / NLOS_DRIFT`` (40) ranges that fit.
 
+    Anchor exclusion (``anchor_exclusion``, on by default). An anchor surveyed metres from where
+    it stands (or moved since) reads wrong for good, long or short, and no step starts it. Its
+    ranges fail the gate one by one, and a run of gated ranges is what isolates a federated
+    local and what says a filter is lost. So an anchor whose every range has failed the screen
+    for :data:`EXCLUSION_RUN_S` is tested with the ranges alone (:meth:`UwbRanges._raim`: the
+    fit of all anchors, then each left out) and withheld while it is the one anchor the others'
+    fit excludes; it is let back in once its ranges fit with the others' again. Both are
+    ``faults.csv`` lines (``exclude anchor``, ``include anchor``).
+
     Epoch grid (``epoch_grid_s``): a range system polls its anchors a few milliseconds apart
     (five anchors at 3.1 ms in ``longwall-200m``), and one epoch per range means one covariance
     step, one fusion and one SINS correction per range. On a grid, range k (time t_k) is taken
@@ -221,6 +230,12 @@ SHORT_RANGE_WINDOW_S = 3.0
 gate before the filter is taken to be on a wrong solution (:meth:`UwbRanges.off_solution`)."""
 REACQUIRE_SPREAD_M = 0.1
 """1σ per axis of the tag's travel over that window, and of the lever arm's turn."""
+EXCLUSION_RUN_S = 1.0
+"""How long every range of one anchor must fail the screen before the ranges of the last
+:data:`REACQUIRE_WINDOW_S` are tested for a faulty anchor (:meth:`UwbRanges._anchor_test`),
+and how often an excluded anchor is tested again."""
+EXCLUDE, INCLUDE = "exclude anchor", "include anchor"
+"""``faults.csv`` actions of an anchor taken out of the updates and let back in."""
 NLOS_STEP = 6.0
 """A range that reads this many σ (of its innovation) longer than the anchor's previous one did,
 and at least this long itself, starts the anchor's NLOS: a bias of 0.3 m and more arrives in
@@ -303,6 +318,12 @@ class UwbOptions(PluginOptions):
         description="withhold an anchor's ranges from a step to reading long until they fit"
         " again (NLOS; module docstring)",
     )
+    anchor_exclusion: bool = Field(
+        True,
+        description="withhold an anchor whose ranges fail the gate while the other anchors'"
+        " ranges fit one position without them, until they fit together again (module"
+        " docstring)",
+    )
     least_squares: LeastSquaresOptions = Field(
         default_factory=LeastSquaresOptions,
         description="the UWB-only baseline (filter.architecture: standalone)",
@@ -375,6 +396,9 @@ class UwbRanges(Plugin):
         self.lengthening = np.zeros(n)
         self.t_lengthening = np.full(n, -np.inf)
         self.reads_long = np.zeros(n)
+        self.excluded = np.zeros(n, dtype=bool)
+        self.failing_since = np.full(n, np.nan)
+        self.next_test = np.full(n, -np.inf)
 
     def standalone_solution(self, gate_probability: float | None, log: InnovationLog) -> Solution:
         """The UWB-only least-squares baseline with ``options.least_squares``."""
@@ -470,15 +494,28 @@ class UwbRanges(Plugin):
         prior: tuple[NDArray[np.float64], NDArray[np.float64]],
         arm_up: float,
     ) -> tuple[NDArray[np.float64], NDArray[np.float64]] | None:
-        """Least-squares tag position from the ranges in (t0, t1] that agree with each other,
-        or None.
+        """Least-squares tag position and covariance from the ranges in (t0, t1] that agree
+        with each other (:meth:`_raim`), or None."""
+        found = self._raim(t0, t1, prior, arm_up)
+        return None if found is None else found[0][:2]
 
-        A fix is taken only if its ranges fit it (:meth:`_consistent`). Otherwise each anchor is
-        left out in turn (receiver autonomous integrity monitoring: the sum-of-squares test and
-        exclusion of Parkinson & Axelrad, *Navigation* 35(2), 1988): the fix of the others is
-        taken if it is the one subset that fits. None fitting, or more than one (a bad anchor
-        absorbed by three anchors and the face's height), no fix is given: an anchor surveyed
-        metres from where it stands must not restart a filter that is right
+    def _raim(
+        self,
+        t0: float,
+        t1: float,
+        prior: tuple[NDArray[np.float64], NDArray[np.float64]],
+        arm_up: float,
+    ) -> tuple[tuple[NDArray[np.float64], NDArray[np.float64], float, int], int | None] | None:
+        """The window fit (:meth:`_window_fit`) of the ranges in (t0, t1] that agree with each
+        other, and the anchor left out of it (None: none), or None.
+
+        A fit is taken only if its ranges fit it (:meth:`_consistent`). Otherwise, or when they
+        give none (Gauss–Newton does not settle on ranges that contradict each other), each
+        anchor is left out in turn (receiver autonomous integrity monitoring: the
+        sum-of-squares test and exclusion of Parkinson & Axelrad, *Navigation* 35(2), 1988):
+        the fit of the others is taken if it is the one subset that fits. None fitting, or more
+        than one (a bad anchor absorbed by three anchors and the face's height), none is given:
+        an anchor surveyed metres from where it stands must not restart a filter that is right
         (docs/design/2026-11-30-unusual-recordings.md).
         """
         lo = int(np.searchsorted(self.data.t, t0, side="right"))
@@ -486,15 +523,73 @@ class UwbRanges(Plugin):
         index = self.data.anchor_index[lo:hi]
         ranges = self.data.range[lo:hi]
         fit = self._window_fit(index, ranges, prior, arm_up)
-        if fit is None or self._consistent(fit):
-            return None if fit is None else fit[:2]
+        if fit is not None and self._consistent(fit):
+            return fit, None
         fits = []
         for k in np.unique(index):
             kept = index != k
             subset = self._window_fit(index[kept], ranges[kept], prior, arm_up)
             if subset is not None and self._consistent(subset):
-                fits.append(subset)
-        return fits[0][:2] if len(fits) == 1 else None
+                fits.append((subset, int(k)))
+        return fits[0] if len(fits) == 1 else None
+
+    def _anchor_test(
+        self,
+        index: int,
+        nis: float,
+        prior: tuple[NDArray[np.float64], NDArray[np.float64]],
+        arm_up: float,
+    ) -> tuple[str, str] | None:
+        """Take anchor k of range ``index`` out of the updates, or let it back in; the
+        ``faults.csv`` line (action, reason) when it does either.
+
+        An anchor whose every range has failed the screen (``nis``, the range's normalized
+        innovation squared, above the ``adaptive_screen_probability`` quantile) for
+        :data:`EXCLUSION_RUN_S` is tested with the ranges of all anchors over the last
+        :data:`REACQUIRE_WINDOW_S`, the filter left out (:meth:`_raim`): it is excluded when
+        it is the one anchor whose removal makes them fit. An anchor surveyed metres from where
+        it stands, or moved since, then costs its own ranges only: gated one by one, they
+        isolated the federated filter's whole UWB local (window χ² 998 against 462) and kept
+        it out, and, reading short of a right filter, restarted it every 3 s
+        (:meth:`off_solution`). A filter that drifted fails the ranges of every anchor that
+        looks along its error; the ranges alone then fit, and nothing is excluded. An excluded
+        anchor is let back in once its ranges fit together with the others' again (all of
+        them, or all but another anchor's), tested every :data:`EXCLUSION_RUN_S`.
+        """
+        if not self.options.anchor_exclusion:
+            return None
+        k = int(self.data.anchor_index[index])
+        t = float(self.data.t[index])
+        anchor = self.data.anchor_ids[k]
+        if self.excluded[k]:
+            if t < self.next_test[k]:
+                return None
+            self.next_test[k] = t + EXCLUSION_RUN_S
+            found = self._raim(t - REACQUIRE_WINDOW_S, t, prior, arm_up)
+            if found is None or found[1] == k:
+                return None
+            self.excluded[k] = False
+            return INCLUDE, f"anchor {anchor}: its ranges fit one position with the others' again"
+        if nis <= self._screen:
+            self.failing_since[k] = np.nan
+            return None
+        if not np.isfinite(self.failing_since[k]):
+            self.failing_since[k] = t
+        if t - self.failing_since[k] < EXCLUSION_RUN_S:
+            return None
+        self.failing_since[k] = t  # the next test after another run
+        found = self._raim(t - REACQUIRE_WINDOW_S, t, prior, arm_up)
+        if found is None or found[1] != k:
+            return None
+        self.excluded[k] = True
+        self.next_test[k] = t + EXCLUSION_RUN_S
+        self.short_since[k] = np.nan  # its short ranges no longer say the filter is off
+        _, _, cost, dof = found[0]
+        return EXCLUDE, (
+            f"anchor {anchor}: its ranges failed the gate for {EXCLUSION_RUN_S:g} s, and the"
+            f" ranges of the other anchors alone fit one position (χ² {cost:.3g} of {dof}"
+            " degrees of freedom) while all together do not"
+        )
 
     def _consistent(self, fit: tuple[NDArray[np.float64], NDArray[np.float64], float, int]) -> bool:
         """Whether a window fit's ranges fit it: its χ² (:func:`_chi2` at the anchors' noise)
@@ -626,15 +721,26 @@ class UwbRanges(Plugin):
         # A slow machine: the lever arm's heading column is the consider state (docstring).
         consider = (att.start + 2,) if ctx.observable_force else ()
         current = self._noise(k)
-        if self._in_nlos(index, k, innovation, predicted + current):
+        tag = position + rot.T @ arm_n
+        prior = (tag, rot.T @ ctx.covariance[pos, pos] @ rot)
+        nis = innovation * innovation / (predicted + current)
+        fault = self._anchor_test(index, nis, prior, float(tag[2] - position[2]))
+        if self.excluded[k] or self._in_nlos(index, k, innovation, predicted + current):
             variance = current + spread
             return Measurement(
-                np.array([z]), h[None, :], np.array([[variance]]), withheld=True, consider=consider
+                np.array([z]),
+                h[None, :],
+                np.array([[variance]]),
+                withheld=True,
+                consider=consider,
+                fault=fault,
             )
         noise = self._variance(index, k, innovation, predicted)
         self._count_short(index, k, innovation, predicted + noise)
         variance = noise + spread
-        return Measurement(np.array([z]), h[None, :], np.array([[variance]]), consider=consider)
+        return Measurement(
+            np.array([z]), h[None, :], np.array([[variance]]), consider=consider, fault=fault
+        )
 
     def _noise(self, k: int) -> float:
         """Anchor ``k``'s current ranging variance (configured or learned), as it stands."""
