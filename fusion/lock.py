@@ -6,15 +6,17 @@ a healthy sensor at its χ² gate: the innovations are far outside S because the
 the error. Nothing then brings it back (``sins_uwb`` on random worlds: 10⁶ m horizontal RMS, the
 fix never re-acquired at the next face end), and nothing says so.
 
-:class:`LockMonitor` watches one gated plugin's updates: when over the last ``window_s`` it has
-had at least ``min_updates`` and the filter rejected every one, while no other plugin had an
-update accepted (another sensor still holding the filter makes this one the suspect: NLOS on
-every anchor looks the same from the UWB alone), the lock is lost. The engine
-then asks the plugin for what it can say alone (:meth:`fusion.plugin.Plugin.reacquire`, e.g. a
-UWB least-squares fix from the ranges of the last seconds), restarts the filter's position and
-velocity at that fix, uncorrelated with the rest, and writes a ``reacquire`` line to
-``faults.csv`` (a fix within the filter's own σ, from a filter uncertain rather than lost, is taken
-in as a position update instead: ``Engine._take_in_fix``). A plugin that cannot say where the
+:class:`LockMonitor` watches one gated plugin's updates: when over the last ``window_s`` it has had
+at least ``min_updates`` and the filter rejected every one, while no other plugin had an update
+accepted (another sensor still holding the filter makes this one the suspect: NLOS on every anchor
+looks the same from the UWB alone), the lock is lost. The engine then asks the plugin for what it
+can say alone (:meth:`fusion.plugin.Plugin.reacquire`, e.g. a UWB least-squares fix from the ranges
+of the last seconds), restarts the filter's position and velocity at that fix, uncorrelated with the
+rest, and writes a ``reacquire`` line to ``faults.csv`` (a fix within the filter's own σ, from a
+filter uncertain rather than lost, is taken in as a position update instead:
+``Engine._take_in_fix``). A plugin whose every update is rejected while another still holds the
+filter is not re-acquired from, but gets one ``disputed`` line until one of its updates is accepted
+again: either it or the filter is wrong, and the user is told. A plugin that cannot say where the
 machine is (an odometer, a motion constraint) gets a ``lost lock`` line, and the variances of the
 SINS states are multiplied by the fading factor λ of the last rejected innovation
 (:func:`fading_factor`): the smallest λ with ``νᵀ (λ H P Hᵀ + R)⁻¹ ν = m``, the factor that makes
@@ -43,7 +45,7 @@ from numpy.typing import NDArray
 
 from fusion.error_model import ATTITUDE, COMMON_BLOCKS
 
-LOST_LOCK, REACQUIRE = "lost lock", "reacquire"
+LOST_LOCK, REACQUIRE, DISPUTED = "lost lock", "reacquire", "disputed"
 
 
 @dataclass(frozen=True)

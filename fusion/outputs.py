@@ -240,7 +240,8 @@ _ENGINE_ACTIONS = (ISOLATE, READMIT, JUMP, LOST_LOCK, REACQUIRE, WIDEN, BOUND)
 
 
 def _other_actions(actions: list[str]) -> str:
-    """The count of each other ``faults.csv`` action (one a plugin's own test wrote,
-    :attr:`fusion.plugin.Measurement.fault`, e.g. ``exclude anchor``), for the summary."""
+    """The count of each other ``faults.csv`` action (a ``disputed`` plugin, or one a
+    plugin's own test wrote, :attr:`fusion.plugin.Measurement.fault`, e.g. ``exclude
+    anchor``), for the summary."""
     counts = Counter(a for a in actions if a not in _ENGINE_ACTIONS)
     return "".join(f", {n} × {action}" for action, n in sorted(counts.items()))

@@ -15,6 +15,7 @@ from fusion.engine import Engine, _holds
 from fusion.error_model import GYRO_BIAS, POSITION, VELOCITY
 from fusion.kalman import KalmanFilter
 from fusion.lock import (
+    DISPUTED,
     LOST_LOCK,
     MAX_FADING,
     MAX_INFLATED_ATTITUDE_SIGMA,
@@ -179,3 +180,26 @@ def test_odometer_lost_lock_inflates_instead_of_coasting(tmp_path: Path) -> None
     inside, truth, *_ = interpolate_truth(recording.truth, result.solution.t)
     error = result.solution.position[inside] - truth
     assert np.hypot(error[:, 0], error[:, 1]).max() < 2.0
+
+
+def test_a_sensor_rejected_while_another_holds_the_filter_is_disputed_once(
+    tmp_path: Path,
+) -> None:
+    """Every anchor reads 1 m long from 60 s to 75 s (NLOS on all of them): every range is
+    withheld, but the odometer holds the filter, so nothing is re-acquired from the ranges.
+    One ``disputed`` line says that the UWB or the filter is wrong; the filter stays right."""
+    from dataclasses import replace
+
+    path = simulate("longwall-random", tmp_path / "rec", seed=3, overrides=["duration_s=150"])
+    config = load_config(Path(__file__).resolve().parents[1] / "configs" / "full_ckf.yaml")
+    rec = read_recording(path)
+    assert rec.uwb is not None and rec.truth is not None
+    nlos = (rec.uwb.t >= 60.0) & (rec.uwb.t < 75.0)
+    result = Engine(config, replace(rec, uwb=replace(rec.uwb, range=rec.uwb.range + nlos))).run()
+    rows = [(e.t, e.local, e.action) for e in result.faults]
+    disputed = [r for r in rows if r[2] == DISPUTED]
+    assert len(disputed) == 1 and disputed[0][1] == "uwb" and 60.0 < disputed[0][0] < 75.0
+    assert not [r for r in rows if r[2] in (REACQUIRE, LOST_LOCK)]
+    inside, pos, *_ = interpolate_truth(rec.truth, result.solution.t)
+    error = np.linalg.norm(result.solution.position[inside, :2] - pos[:, :2], axis=1)
+    assert np.max(error) < 0.1
