@@ -1160,9 +1160,8 @@ class Engine:
         """The ``faults.csv`` line of plugin ``src`` whose every update is rejected while other
         plugins hold the filter (:meth:`_alone`): no re-acquisition, so that an NLOS burst on
         every anchor does not move the SINS, but the user is told, once until an update of
-        ``src`` is accepted again, that either the sensor or the filter is wrong. A wheel that
-        skidded while every anchor was in NLOS left ``full_ckf`` 0.39 m off at a σ of 5 cm for
-        the last 300 s of a harsh world, its UWB ranges held out, and no line said so
+        ``src`` is accepted again, that either the sensor or the filter is wrong. Before, such
+        a plugin was rejected in silence however long it lasted
         (docs/design/2026-11-30-anchor-exclusion.md)."""
         name = self.plugins[src].name
         since = t - self.config.filter.lock_window_s
