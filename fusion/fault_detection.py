@@ -36,10 +36,7 @@ the window,
 
     M(t) = ‖Σ w_k‖² / n ~ χ²_m,    fault ⇔ M(t) > χ²_m(p_M)   (n ≥ 10, m constant in the window)
 
-(the same slip gives M = 31 against a threshold of 26 and a nominal maximum of 14). Each w_k
-is shortened to the χ²_m quantile's length, as the sum caps each NIS: uncapped, three gated
-ranges of one anchor that read 2 m short (w ≈ −30 each) isolated the UWB local within 0.3 s,
-though the gate had kept every one of them out of it. The test
+(the same slip gives M = 31 against a threshold of 26 and a nominal maximum of 14). The test
 runs at every update, so its false-alarm rate is its tail probability times the update rate:
 UWB ranges at 35 per second and p_M = 0.9999 isolated the UWB local of an independent world
 once every 8 minutes at statistics just over the bound (15.4–17.4 against 15.1); p_M is
@@ -115,19 +112,6 @@ class FaultEvent:
     threshold: float
     action: str
     reason: str
-
-
-def _capped(
-    whitened: NDArray[np.float64] | None, dof: int, probability: float
-) -> NDArray[np.float64] | None:
-    """A whitened innovation shortened to the χ²_m quantile's length where it is longer: an
-    update the gate rejected moved nothing, and counts toward the mean test as much as the
-    longest one it could have accepted."""
-    if whitened is None or not whitened.size:
-        return whitened
-    length2 = float(whitened @ whitened)
-    cap = chi2_threshold(dof, probability)
-    return whitened if length2 <= cap else whitened * math.sqrt(cap / length2)
 
 
 def ar1_sum_variance_factor(n: int, rho: float) -> float:
@@ -273,7 +257,7 @@ class FaultMonitor:
         reference = self._references.get(source)
         if reference is None:
             reference = self._references[source] = _Reference(REFERENCE_WINDOWS * opts.window_s)
-        raw_mean = self._window_mean(t, source, _capped(whitened, dof, opts.probability))
+        raw_mean = self._window_mean(t, source, whitened)
         mean_statistic, mean_threshold = 0.0, np.inf
         if reference.armed(opts.window_s) and raw_mean is not None and whitened is not None:
             mean_statistic = raw_mean[0] / reference.sum_factor(raw_mean[1])
