@@ -545,9 +545,8 @@ class Engine:
             for gate in self.gates
         ]
         self._last_held = [-math.inf] * len(self.plugins)
-        self._disputed = [False] * len(self.plugins)
         self._at_bound = {}
-        self._watched = any(lock is not None for lock in self._locks)  # else _alone is unasked
+        self._watched = any(lock is not None for lock in self._locks)  # else _holders is unasked
         self._needs_holds = self._watched or cfg.architecture == "federated"  # FederatedFilter
         states = jump_states(self.layout)
         jumps = (
@@ -1024,10 +1023,9 @@ class Engine:
         if holds:
             self._last_held[src] = t
         lock = self._locks[src]
-        if res.accepted:
-            self._disputed[src] = False
         if lock is not None and lock.observe(t, res.accepted):
-            if self._alone(src, t):
+            holders = self._holders(src, t)
+            if not holders:
                 lock.reset()
                 if not self._reacquire(src, t, sins, bank):
                     factor = 1.0
@@ -1035,9 +1033,8 @@ class Engine:
                         statistic_covariance = kf.P if shared is None else shared
                         factor = self._inflate(rows, statistic_covariance, res, bank)
                     bank.faults.append(self._lost_lock(src, t, res, factor))
-            elif not self._disputed[src]:
-                self._disputed[src] = True
-                bank.faults.append(self._disputed_lock(src, t, res))
+            elif lock.first_dispute():
+                bank.faults.append(self._disputed_lock(src, t, res, holders))
         if jumps is not None and signature is not None:
             events = [jumps.observe(t, bank, src, signature, res)]
             events += [jumps.rest(t, bank, name) for name in m.at_rest]
@@ -1117,16 +1114,16 @@ class Engine:
                 widened.append(FaultEvent(t, name, math.nan, math.nan, WIDEN, noise.reason))
         return None if added is None else np.diag(added)
 
-    def _alone(self, src: int, t: float) -> bool:
-        """Whether no other plugin had an update accepted within the lock window before ``t``
-        that holds the filter (:func:`_holds`): only then is a plugin whose updates are all
+    def _holders(self, src: int, t: float) -> list[int]:
+        """The other plugins that had an update accepted within the lock window before ``t``
+        that holds the filter (:func:`_holds`). Only with none is a plugin whose updates are all
         rejected taken to show a filter that lost its way (one that other sensors still hold
         is the suspect itself: a burst of NLOS on every anchor, which re-acquiring from would
         have moved the SINS by the NLOS bias). A motion constraint or a ZARU does not hold it:
         the SINS drifts along the track under them, and a UWB tag back in reach of the
         anchors after the middle of the face found every range rejected for good."""
         since = t - self.config.filter.lock_window_s
-        return all(last <= since for k, last in enumerate(self._last_held) if k != src)
+        return [k for k, last in enumerate(self._last_held) if k != src and last > since]
 
     @staticmethod
     def _inflate(
@@ -1156,23 +1153,21 @@ class Engine:
         )
         return FaultEvent(t, name, res.nis, math.nan, LOST_LOCK, reason)
 
-    def _disputed_lock(self, src: int, t: float, res: UpdateResult) -> FaultEvent:
-        """The ``faults.csv`` line of plugin ``src`` whose every update is rejected while other
-        plugins hold the filter (:meth:`_alone`): no re-acquisition, so that an NLOS burst on
-        every anchor does not move the SINS, but the user is told, once until an update of
-        ``src`` is accepted again, that either the sensor or the filter is wrong. Before, such
+    def _disputed_lock(
+        self, src: int, t: float, res: UpdateResult, holders: list[int]
+    ) -> FaultEvent:
+        """The ``faults.csv`` line of plugin ``src`` whose every update is rejected while the
+        plugins ``holders`` hold the filter (:meth:`_holders`): no re-acquisition, so that an
+        NLOS burst on every anchor does not move the SINS, but the user is told, once until an
+        update of ``src`` is accepted again (:meth:`fusion.lock.LockMonitor.first_dispute`),
+        that either the sensor or the filter is wrong. Before, such
         a plugin was rejected in silence however long it lasted
         (docs/design/2026-11-30-anchor-exclusion.md)."""
         name = self.plugins[src].name
-        since = t - self.config.filter.lock_window_s
-        holders = [
-            p.name
-            for k, (p, last) in enumerate(zip(self.plugins, self._last_held, strict=True))
-            if k != src and last > since
-        ]
+        held_by = ", ".join(self.plugins[k].name for k in holders)
         reason = (
             f"every update of {name} rejected for {self.config.filter.lock_window_s:g} s while"
-            f" {', '.join(holders)} held the filter: {name} is faulty, or the filter is off by"
+            f" {held_by} held the filter: {name} is faulty, or the filter is off by"
             " more than its σ (not re-acquired from it)"
         )
         return FaultEvent(t, name, res.nis, math.nan, DISPUTED, reason)

@@ -146,6 +146,16 @@ class LockMonitor:
         self.last_accepted: float | None = None
         """Time of the last update the filter accepted (None: none yet)."""
         self._inflated = False
+        self._disputed = False
+
+    def first_dispute(self) -> bool:
+        """Whether a lost lock the engine will not re-acquire from (another plugin holds the
+        filter) is to be reported: only the first since one of the plugin's updates was
+        accepted."""
+        if self._disputed:
+            return False
+        self._disputed = True
+        return True
 
     def first_inflation(self) -> bool:
         """Whether the filter may inflate for this lost lock: not when it already did for an
@@ -163,6 +173,7 @@ class LockMonitor:
         """Add one update; whether the lock is lost (every update of a full window rejected)."""
         if accepted:
             self.last_accepted = t
+            self._disputed = False
         if self._since is None:
             self._since = t
         self._updates.append((t, accepted))

@@ -45,7 +45,7 @@ def test_monitor_needs_a_whole_window_of_rejections() -> None:
 
 
 def test_only_updates_that_fix_velocity_or_position_hold_the_filter() -> None:
-    """Lost lock is declared only while no other source holds the filter (Engine._alone): a
+    """Lost lock is declared only while no other source holds the filter (Engine._holders): a
     motion constraint (two velocity rows) with a ZARU does not, since the SINS drifts along
     the track under it (sins_uwb never re-acquired at the far face end: 34 km off for an hour
     on a random world); an odometer with its constraint rows, a zero velocity and a position
