@@ -195,6 +195,7 @@ from __future__ import annotations
 
 import bisect
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Literal
 
@@ -445,10 +446,8 @@ class UwbRanges(Plugin):
         with an attitude that coasted too (:data:`REACQUIRE_SPREAD_M` per axis each).
         """
         window = REACQUIRE_WINDOW_S
-        rot = ctx.rotation_to_local
-        arm_enu = rot.T @ ctx.c_b_n @ self.lever_arm
-        pos = ctx.layout.slice(POSITION)
-        prior = (ctx.position_enu + arm_enu, rot.T @ ctx.covariance[pos, pos] @ rot)
+        arm_enu = ctx.rotation_to_local.T @ ctx.c_b_n @ self.lever_arm
+        prior = _tag_prior(ctx.position_enu + arm_enu, ctx)
         earlier = self._fix(t - 2 * window, t - window, prior, float(arm_enu[2]))
         later = self._fix(t - window, t, prior, float(arm_enu[2]))
         if earlier is None or later is None:
@@ -537,8 +536,7 @@ class UwbRanges(Plugin):
         self,
         index: int,
         nis: float,
-        prior: tuple[NDArray[np.float64], NDArray[np.float64]],
-        arm_up: float,
+        prior: Callable[[], tuple[tuple[NDArray[np.float64], NDArray[np.float64]], float]],
     ) -> tuple[str, str] | None:
         """Take anchor k of range ``index`` out of the updates, or let it back in; the
         ``faults.csv`` line (action, reason) when it does either.
@@ -546,7 +544,9 @@ class UwbRanges(Plugin):
         An anchor whose every range has failed the screen (``nis``, the range's normalized
         innovation squared, above the ``adaptive_screen_probability`` quantile) for
         :data:`EXCLUSION_RUN_S` is tested with the ranges of all anchors over the last
-        :data:`REACQUIRE_WINDOW_S`, the filter left out (:meth:`_raim`): it is excluded when
+        :data:`REACQUIRE_WINDOW_S`, the filter left out but for the start of the fit
+        (:meth:`_raim`; ``prior()``: the tag's prior and its height above the IMU, computed
+        only for a test): it is excluded when
         it is the one anchor whose removal makes them fit. An anchor surveyed metres from where
         it stands, or moved since, then costs its own ranges only: gated one by one, they
         isolated the federated filter's whole UWB local (window χ² 998 against 462) and kept
@@ -565,7 +565,7 @@ class UwbRanges(Plugin):
             if t < self.next_test[k]:
                 return None
             self.next_test[k] = t + EXCLUSION_RUN_S
-            found = self._raim(t - REACQUIRE_WINDOW_S, t, prior, arm_up)
+            found = self._raim(t - REACQUIRE_WINDOW_S, t, *prior())
             if found is None or found[1] == k:
                 return None
             self.excluded[k] = False
@@ -578,7 +578,7 @@ class UwbRanges(Plugin):
         if t - self.failing_since[k] < EXCLUSION_RUN_S:
             return None
         self.failing_since[k] = t  # the next test after another run
-        found = self._raim(t - REACQUIRE_WINDOW_S, t, prior, arm_up)
+        found = self._raim(t - REACQUIRE_WINDOW_S, t, *prior())
         if found is None or found[1] != k:
             return None
         self.excluded[k] = True
@@ -721,10 +721,13 @@ class UwbRanges(Plugin):
         # A slow machine: the lever arm's heading column is the consider state (docstring).
         consider = (att.start + 2,) if ctx.observable_force else ()
         current = self._noise(k)
-        tag = position + rot.T @ arm_n
-        prior = (tag, rot.T @ ctx.covariance[pos, pos] @ rot)
+
+        def prior() -> tuple[tuple[NDArray[np.float64], NDArray[np.float64]], float]:
+            tag = position + rot.T @ arm_n
+            return _tag_prior(tag, ctx), float(tag[2] - position[2])
+
         nis = innovation * innovation / (predicted + current)
-        fault = self._anchor_test(index, nis, prior, float(tag[2] - position[2]))
+        fault = self._anchor_test(index, nis, prior)
         if self.excluded[k] or self._in_nlos(index, k, innovation, predicted + current):
             variance = current + spread
             return Measurement(
@@ -810,6 +813,16 @@ class UwbRanges(Plugin):
             r = beta / alpha
         self.alpha[k], self.beta[k] = alpha, beta
         return r
+
+
+def _tag_prior(
+    tag: NDArray[np.float64], ctx: MeasurementContext
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """The prior of a window fit: the SINS's tag position ``tag`` (origin ENU) and the
+    filter's position covariance turned to origin ENU axes."""
+    rot = ctx.rotation_to_local
+    pos = ctx.layout.slice(POSITION)
+    return tag, rot.T @ ctx.covariance[pos, pos] @ rot
 
 
 def second_order_range(
