@@ -1016,9 +1016,16 @@ def test_least_squares_gives_no_fix_where_the_tag_cannot_be() -> None:
     assert counts[0, 1] >= 0.9 * counts[1, 1], counts
 
 
+@pytest.fixture(scope="module")
+def world_150(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """Random world 3 cut at 150 s (a face end with four anchors)."""
+    out = tmp_path_factory.mktemp("world_150") / "rec"
+    return simulate("longwall-random", out, seed=3, overrides=["duration_s=150"])
+
+
 @pytest.mark.parametrize("name", ["sins_uwb", "full_afkf"])
 def test_one_anchor_surveyed_metres_off_costs_its_own_ranges_only(
-    tmp_path: Path, name: str
+    world_150: Path, tmp_path: Path, name: str
 ) -> None:
     """One anchor of a face end stands 5 m from where meta.yaml says. Its ranges read short of
     a filter that is right, which the plugin took for a filter on a wrong solution, and the
@@ -1028,9 +1035,11 @@ def test_one_anchor_surveyed_metres_off_costs_its_own_ranges_only(
     Gated one by one, the anchor's ranges also isolated the federated filter's UWB local for
     good (``full_afkf`` 0.94 m on a 600-s world of this seed): now the anchor is excluded
     (a ``faults.csv`` line) and nothing is isolated."""
+    import shutil
+
     import yaml
 
-    path = simulate("longwall-random", tmp_path / "rec", seed=3, overrides=["duration_s=150"])
+    path = Path(shutil.copytree(world_150, tmp_path / "rec"))  # meta.yaml is edited below
     config = load_config(Path(__file__).resolve().parents[1] / "configs" / f"{name}.yaml")
 
     def run() -> tuple[float, RunResult]:
@@ -1054,15 +1063,14 @@ def test_one_anchor_surveyed_metres_off_costs_its_own_ranges_only(
 
 
 @pytest.mark.parametrize("name", ["full_ckf", "full_afkf"])
-def test_an_anchor_off_for_a_while_is_excluded_and_let_back_in(tmp_path: Path, name: str) -> None:
+def test_an_anchor_off_for_a_while_is_excluded_and_let_back_in(world_150: Path, name: str) -> None:
     """One anchor's ranges read 2 m short from 20 s to 60 s (an anchor knocked and put back):
     it is excluded while its ranges contradict the others' and let back in once they fit
     again, and the track stays as good as without the fault. The federated filter's mean test
     isolates the UWB local on the first gated ranges; it is back within a window and a hold
     of the exclusion (before it, not until the fault was over)."""
-    path = simulate("longwall-random", tmp_path / "rec", seed=3, overrides=["duration_s=150"])
     config = load_config(Path(__file__).resolve().parents[1] / "configs" / f"{name}.yaml")
-    rec = read_recording(path)
+    rec = read_recording(world_150)
     assert rec.uwb is not None and rec.truth is not None
     knocked = (rec.uwb.anchor_index == 0) & (rec.uwb.t >= 20.0) & (rec.uwb.t < 60.0)
     faulty = replace(rec, uwb=replace(rec.uwb, range=rec.uwb.range - 2.0 * knocked))
