@@ -701,3 +701,27 @@ def test_a_lost_zupt_restarts_at_rest_within_the_top_speed(tmp_path: Path) -> No
             assert not restarts
     print(errors)
     assert errors["with"] < 0.2 * errors["without"]
+
+
+@pytest.mark.slow
+def test_the_constraint_alone_keeps_its_sigma_on_long_random_worlds(
+    tmp_path_factory: pytest.TempPathFactory,
+) -> None:
+    """``sins_mc``: nothing sees the heading or the speed along the track, so the position's and
+    the yaw's σ must grow as their errors do. Random worlds 0 and 1 at their own length (48 and
+    64 min), scored as the robustness suite scores them: pooled RMS(ε/σ) east, north and yaw at
+    most 1.5. With the constraint's σ at the cutting vibration alone (0.003 m/s) the lateral row
+    steered the heading: north 1.79, yaw 2.63 (docs/design/2026-12-01-constraint-noise.md)."""
+    from benchmarks.robustness import run_one
+
+    config = load_config(CONFIGS / "sins_mc.yaml")
+    rows = []
+    for seed in (0, 1):
+        directory = simulate("longwall-random", tmp_path_factory.mktemp(f"world{seed}"), seed=seed)
+        rows.append(run_one(config, read_recording(directory, bridge_imu_gaps=True))[0])
+    for axis in ("e", "n", "yaw"):
+        pooled = math.sqrt(
+            sum(r[f"nz_{axis}_sumsq"] for r in rows) / sum(r[f"nz_{axis}_count"] for r in rows)
+        )
+        print(f"RMS(ε/σ) {axis}: {pooled:.2f}")
+        assert pooled <= 1.5, axis
