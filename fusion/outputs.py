@@ -202,13 +202,7 @@ def summary(result: RunResult, recording: Recording) -> str:
         )
     actions = [e.action for e in result.faults]
     if result.config.filter.architecture == "federated" or actions:
-        lines.append(
-            f"faults     {actions.count(ISOLATE)} isolations, {actions.count(READMIT)} "
-            f"re-admissions, {actions.count(JUMP)} state jumps taken in, "
-            f"{actions.count(LOST_LOCK)} lost locks, {actions.count(REACQUIRE)} re-acquisitions,"
-            f" {actions.count(WIDEN)} widenings, {actions.count(BOUND)} estimates held at their"
-            f" bounds{_other_actions(actions)} (faults.csv)"
-        )
+        lines.append(f"faults     {_fault_counts(actions)} (faults.csv)")
     if result.smoother_rejected:
         lines.append(
             f"smoother   {result.smoother_rejected} output epochs kept their forward estimate"
@@ -236,12 +230,22 @@ def summary(result: RunResult, recording: Recording) -> str:
     return "\n".join(lines)
 
 
-_ENGINE_ACTIONS = (ISOLATE, READMIT, JUMP, LOST_LOCK, REACQUIRE, WIDEN, BOUND)
+_ENGINE_ACTIONS = (
+    (ISOLATE, "isolations"),
+    (READMIT, "re-admissions"),
+    (JUMP, "state jumps taken in"),
+    (LOST_LOCK, "lost locks"),
+    (REACQUIRE, "re-acquisitions"),
+    (WIDEN, "widenings"),
+    (BOUND, "estimates held at their bounds"),
+)
+"""The engine's ``faults.csv`` actions, each counted in the summary even when zero."""
 
 
-def _other_actions(actions: list[str]) -> str:
-    """The count of each other ``faults.csv`` action (a ``disputed`` plugin, or one a
-    plugin's own test wrote, :attr:`fusion.plugin.Measurement.fault`, e.g. ``exclude
-    anchor``), for the summary."""
-    counts = Counter(a for a in actions if a not in _ENGINE_ACTIONS)
-    return "".join(f", {n} × {action}" for action, n in sorted(counts.items()))
+def _fault_counts(actions: list[str]) -> str:
+    """The summary's count of each ``faults.csv`` action: the engine's (:data:`_ENGINE_ACTIONS`),
+    then any other that occurred (a ``disputed`` plugin, or one a plugin's own test wrote,
+    :attr:`fusion.plugin.Measurement.fault`, e.g. ``exclude anchor``)."""
+    counts = Counter(actions)
+    engine = ", ".join(f"{counts.pop(action, 0)} {label}" for action, label in _ENGINE_ACTIONS)
+    return engine + "".join(f", {n} × {action}" for action, n in sorted(counts.items()))

@@ -570,12 +570,8 @@ class UwbRanges(Plugin):
                 return None
             self.excluded[k] = False
             return INCLUDE, f"anchor {anchor}: its ranges fit one position with the others' again"
-        if nis <= self._screen:
-            self.failing_since[k] = np.nan
-            return None
-        if not np.isfinite(self.failing_since[k]):
-            self.failing_since[k] = t
-        if t - self.failing_since[k] < EXCLUSION_RUN_S:
+        since = _run_start(self.failing_since, k, t, nis > self._screen)
+        if not t - since >= EXCLUSION_RUN_S:  # NaN: the range passed the screen
             return None
         self.failing_since[k] = t  # the next test after another run
         found = self._raim(t - REACQUIRE_WINDOW_S, t, *prior())
@@ -781,11 +777,8 @@ class UwbRanges(Plugin):
     def _count_short(self, index: int, k: int, innovation: float, s: float) -> None:
         """Track how long anchor ``k``'s ranges have read short of the filter's distance by
         more than the screen's gate (``innovation = r̃ − r`` against its variance ``s``)."""
-        if innovation > 0.0 and innovation * innovation > self._screen * s:
-            if not np.isfinite(self.short_since[k]):
-                self.short_since[k] = float(self.data.t[index])
-        else:
-            self.short_since[k] = np.nan
+        short = innovation > 0.0 and innovation * innovation > self._screen * s
+        _run_start(self.short_since, k, float(self.data.t[index]), short)
 
     def _variance(self, index: int, k: int, nu: float, s: float) -> float:
         """R of anchor ``k``: fixed, or the variational-Bayes update (module docstring) from
@@ -813,6 +806,16 @@ class UwbRanges(Plugin):
             r = beta / alpha
         self.alpha[k], self.beta[k] = alpha, beta
         return r
+
+
+def _run_start(since: NDArray[np.float64], k: int, t: float, failing: bool) -> float:
+    """Start of anchor ``k``'s current run of failing ranges in ``since`` (NaN: the last range
+    did not fail), updated with one range at ``t``."""
+    if not failing:
+        since[k] = np.nan
+    elif not np.isfinite(since[k]):
+        since[k] = t
+    return float(since[k])
 
 
 def _tag_prior(
