@@ -106,6 +106,12 @@ class ImuTuning(_Strict):
         description="in-run bias: Gauss–Markov decay of the bias state, or a random walk of the"
         " same density 2σ²/τ on top of the constant turn-on bias",
     )
+    noise_at_rest: bool = Field(
+        True,
+        description="raise ARW and VRW to the white noise measured over the recording's first"
+        " 20 s where the IMU is at rest there and its noise is white and over 1.5× its datasheet's"
+        " (fusion.noise_at_rest); never lowers them, and leaves a figure set here alone",
+    )
     noise_scale: float = _within(
         1.0,
         0.01,

@@ -16,7 +16,9 @@ samples, rejected IMU runs are bridged as gaps, and the counts are in
 :attr:`RunResult.screening`. A plugin whose stream the recording lacks (every aiding file is
 optional in the format) is left out with a warning, unless its block says ``required: true``:
 the run uses the configuration as it stands for this recording (:func:`present_plugins`),
-and :attr:`RunResult.left_out` says what was left out.
+and :attr:`RunResult.left_out` says what was left out. An IMU whose white noise at rest, over
+the recording's first seconds, is grossly worse than its datasheet's gives the filter the
+measured figures instead (:mod:`fusion.noise_at_rest`, :attr:`RunResult.rest_noise`).
 
 The error-state estimates live in a filter bank (:mod:`fusion.filter_bank`): one centralized
 Kalman filter, or the federated master of :mod:`fusion.federated` whose local filters are index
@@ -73,6 +75,7 @@ from fusion.lock import (
     fading_factor,
 )
 from fusion.memory import release_freed_memory
+from fusion.noise_at_rest import RestNoise, with_noise_at_rest
 from fusion.observability import Observability, ObservabilityTracker
 from fusion.plugin import (
     WIDEN,
@@ -123,6 +126,9 @@ class RunResult:
     (:func:`fusion.smoother.plausible_correction`): they keep the forward estimate."""
     screening: ScreeningReport = field(default_factory=lambda: ScreeningReport(enabled=False))
     """Implausible samples rejected per stream and rule before the run (fusion.screening)."""
+    rest_noise: RestNoise = field(default_factory=RestNoise)
+    """The IMU's white noise measured at rest at the start against its datasheet, and the
+    figures the filter took from it (:mod:`fusion.noise_at_rest`)."""
     left_out: tuple[str, ...] = ()
     """The configured plugins the run went without, each with why: the recording lacks its
     stream (:func:`present_plugins`). ``config`` has them disabled."""
@@ -434,6 +440,11 @@ class Engine:
         """States held at their bound in this run, by label: their filter and index."""
         recording = check_recording(recording, bridge_imu_gaps=config.bridge_imu_gaps)
         recording = with_imu_spec(recording, config.imu)
+        self.rest_noise = RestNoise(reason="imu.noise_at_rest is off")
+        if config.imu.noise_at_rest:
+            recording, self.rest_noise = with_noise_at_rest(recording, config.imu)
+            if self.rest_noise.taken:
+                _log.warning("IMU noise at rest: %s", self.rest_noise.describe())
         screened, self.screening = screen_recording(recording, config.screening)
         rate = config.streams.odometer_max_rate_hz
         if screened.odometer is not None and rate is not None:
@@ -679,6 +690,7 @@ class Engine:
             smoother_peak_steps=smoother.peak_steps if smoother is not None else 0,
             smoother_rejected=smoother.rejected if smoother is not None else 0,
             screening=self.screening,
+            rest_noise=self.rest_noise,
             left_out=tuple(self.left_out.values()),
             observability=observed.report(tracked),
             states=recorder.history(solution, self.frame) if recorder is not None else None,
@@ -932,6 +944,7 @@ class Engine:
             config=self.config,
             recording_name=self.recording.meta.name,
             screening=self.screening,
+            rest_noise=self.rest_noise,
             left_out=tuple(self.left_out.values()),
         )
 

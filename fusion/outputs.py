@@ -87,6 +87,7 @@ def write_outputs(
             name: compute_metrics(sol, truth) for name, sol in solutions.items()
         }
         metrics["screening"] = result.screening.to_dict()
+        metrics["imu_noise_at_rest"] = result.rest_noise.to_dict()
         metrics["left_out"] = {"plugins": list(result.left_out)}
         if result.observability is not None:
             metrics["observability"] = result.observability.to_dict()
@@ -192,6 +193,8 @@ def summary(result: RunResult, recording: Recording) -> str:
         f"final σ    e/n/u {np.array2string(sol.sigma_position[-1], precision=3)} m",
     ]
     lines += [f"left out   {reason}" for reason in result.left_out]
+    if result.rest_noise.taken:
+        lines.append(f"IMU noise  {result.rest_noise.describe()}")
     lines += [
         f"screened   {entry.describe()}" for entry in result.screening.streams if entry.rejected
     ]

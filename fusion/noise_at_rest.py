@@ -1,0 +1,168 @@
+"""The IMU's white noise measured while the recording starts at rest, where it is worse than the
+datasheet's.
+
+A datasheet states a typical unit when new. A unit in a shearer can be worse: aged, hot, shaken
+loose on its mount, or simply a worse part than the one the datasheet was written for. The
+filter's angle and velocity random walks (``Q``), the ZARU's noise and the ZUPT's thresholds are
+all derived from the datasheet's figures (``meta.yaml`` ``imu.spec``), so an IMU twice as noisy
+as stated makes every one of them half what it should be: the filter's σ then promises twice
+what it keeps (harsh random worlds, IMU 2–5× its datasheet: RMS(ε/σ) 1.8–2.3).
+
+The white noise of a sensor at rest is directly measurable (it is the short-τ branch of the
+Allan deviation: IEEE Std 952-1997 App. C, El-Sheimy, Hou & Niu, *IEEE Trans. Instrum. Meas.*
+57(1), 2008). Over the first :data:`WINDOW_S` seconds of the recording, each of the six axes
+gives
+
+    σ̂_white = 1.4826 · MAD(x_{k+1} − x_k) / √2,
+
+the per-sample σ of white noise from successive differences (which remove the earth rate,
+gravity and any bias), robust to a stray sample through the median absolute deviation. The
+window is at rest when no axis moves beyond its noise: the spread of x about its median,
+``1.4826 · MAD(x)``, stays within :data:`AT_REST_RATIO` × σ̂_white on every axis (a turn, a
+tilt or a start adds a signal that differences remove and the spread does not); and what it
+holds is white noise when successive samples are uncorrelated (:data:`WHITE_CORRELATION`: a
+vibration is not a random walk, and an idling engine's is no sensor's noise). At rest, the
+median of the three axes over the datasheet's per-sample σ (``N·√rate`` for an ARW or VRW
+``N``) is the sensor's factor; where it exceeds :data:`TOLERANCE`, the datasheet figure is
+replaced by the measured one for the whole run, as an INS's static alignment measures before it
+navigates (a live engine holds its first output for the window). Never lowered: a quiet
+window is no evidence that the datasheet's in-run figures are too large. Beyond :data:`CAP`
+it is not taken: no unit is that far off its own datasheet, and such a window holds
+vibration, not a sensor's noise.
+
+A configuration that sets ``imu.gyro_arw_deg_rth`` or ``imu.accel_vrw_mg_rthz`` itself has
+said what it wants: that figure is left alone.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, replace
+
+import numpy as np
+from numpy.typing import NDArray
+
+from fusion.config import ImuTuning
+from fusion.recording import Recording
+
+WINDOW_S = 20.0
+"""Length of the window at the recording's start (s): 2 000 samples at 100 Hz, a σ known to
+about 2 % (a median of three axes, each 1/√(2N) relative)."""
+MIN_SAMPLES = 200
+"""Fewer samples in the window measure nothing."""
+AT_REST_RATIO = 2.0
+"""An axis whose spread about its median exceeds this many σ̂_white is moving."""
+WHITE_CORRELATION = 0.1
+"""Largest correlation of successive samples of white noise (1/√N is 0.022 for 2 000 samples):
+beyond it the window holds vibration (an engine idling, a conveyor running) or slow motion,
+whose variance is no random walk."""
+TOLERANCE = 1.5
+"""A noise within 1.5× the datasheet's is taken as the datasheet says: a σ off by less is within
+the band [0.6, 1.5] of RMS(ε/σ) that the project holds a consistent filter to, and within the
+spread between a datasheet's typical and maximum figures. The check is for a datasheet that is
+grossly wrong for the unit."""
+CAP = 10.0
+"""A factor beyond this is vibration or motion, not a sensor's white noise."""
+_MAD = 1.4826  # σ of a normal distribution per median absolute deviation
+_G = 9.80665
+
+
+@dataclass(frozen=True)
+class RestNoise:
+    """What the window at the start measured (module docstring)."""
+
+    gyro_factor: float = math.nan
+    """Measured white noise of the gyros ÷ the datasheet's ARW (NaN: not measured)."""
+    accel_factor: float = math.nan
+    """The same for the accelerometers against the VRW."""
+    taken: tuple[str, ...] = ()
+    """``imu.spec`` figures replaced by the measured ones."""
+    reason: str = ""
+    """Why nothing was measured (empty when it was)."""
+
+    def describe(self) -> str:
+        """One line for the run summary."""
+        if self.reason:
+            return f"not measured: {self.reason}"
+        figures = f"gyros {self.gyro_factor:.2f}×, accelerometers {self.accel_factor:.2f}×"
+        if not self.taken:
+            return f"{figures} the datasheet's white noise: the datasheet's figures are kept"
+        taken = ", ".join(self.taken)
+        return f"{figures} the datasheet's white noise: the filter takes the measured {taken}"
+
+    def to_dict(self) -> dict[str, object]:
+        """For ``metrics.json``."""
+        return {
+            "window_s": WINDOW_S,
+            "gyro_factor": None if math.isnan(self.gyro_factor) else self.gyro_factor,
+            "accel_factor": None if math.isnan(self.accel_factor) else self.accel_factor,
+            "taken": list(self.taken),
+            "reason": self.reason,
+        }
+
+
+def white_sigma(x: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Per-column σ of the white noise in ``x`` (samples × axes), from successive differences."""
+    d = np.diff(x, axis=0)
+    return _MAD * np.median(np.abs(d - np.median(d, axis=0)), axis=0) / math.sqrt(2.0)
+
+
+def lag_one_correlation(x: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Per-column correlation of successive samples of ``x`` about the column's median (0 for
+    white noise, ±1/√N)."""
+    x = x - np.median(x, axis=0)
+    return np.asarray(np.sum(x[1:] * x[:-1], axis=0) / np.sum(x * x, axis=0))
+
+
+def _spread(x: NDArray[np.float64]) -> NDArray[np.float64]:
+    return _MAD * np.median(np.abs(x - np.median(x, axis=0)), axis=0)
+
+
+def measure(recording: Recording) -> RestNoise:
+    """The factors of the window at the recording's start, or why there are none."""
+    imu, spec = recording.imu, recording.meta.imu.spec
+    if spec is None or not spec.gyro_arw_deg_rth or not spec.accel_vrw_mg_rthz:
+        return RestNoise(reason="meta.yaml states no white noise to compare with")
+    window = imu.t < imu.t[0] + WINDOW_S
+    if int(window.sum()) < MIN_SAMPLES or imu.t[-1] - imu.t[0] < WINDOW_S:
+        return RestNoise(reason=f"fewer than {MIN_SAMPLES} samples in the first {WINDOW_S:g} s")
+    samples = np.hstack([imu.gyro[window], imu.accel[window]])
+    white = white_sigma(samples)
+    if not np.all(white > 0):
+        return RestNoise(reason="an axis shows no noise (quantized below its resolution)")
+    if np.any(_spread(samples) > AT_REST_RATIO * white):
+        return RestNoise(reason=f"the IMU is not at rest in the first {WINDOW_S:g} s")
+    if np.any(np.abs(lag_one_correlation(samples)) > WHITE_CORRELATION):
+        return RestNoise(reason=f"the IMU's noise in the first {WINDOW_S:g} s is not white")
+    root_rate = math.sqrt(1.0 / float(np.median(np.diff(imu.t[window]))))
+    gyro = math.radians(spec.gyro_arw_deg_rth) / 60.0 * root_rate
+    accel = spec.accel_vrw_mg_rthz * 1e-3 * _G * root_rate
+    return RestNoise(
+        gyro_factor=float(np.median(white[:3]) / gyro),
+        accel_factor=float(np.median(white[3:]) / accel),
+    )
+
+
+def with_noise_at_rest(recording: Recording, tuning: ImuTuning) -> tuple[Recording, RestNoise]:
+    """``recording`` whose ``imu.spec`` white noise is the measured one where the window at
+    rest found it worse than :data:`TOLERANCE` × the datasheet's (module docstring); and what
+    was measured. ``imu.spec`` must hold both white-noise figures
+    (:func:`fusion.engine.with_imu_spec`)."""
+    rest = measure(recording)
+    if rest.reason:
+        return recording, rest
+    spec = recording.meta.imu.spec
+    assert spec is not None and spec.gyro_arw_deg_rth and spec.accel_vrw_mg_rthz
+    update: dict[str, float] = {}
+    for key, factor, configured in (
+        ("gyro_arw_deg_rth", rest.gyro_factor, tuning.gyro_arw_deg_rth),
+        ("accel_vrw_mg_rthz", rest.accel_factor, tuning.accel_vrw_mg_rthz),
+    ):
+        if configured is None and TOLERANCE < factor <= CAP:
+            update[key] = float(getattr(spec, key)) * factor
+    if not update:
+        return recording, rest
+    meta = recording.meta
+    imu = meta.imu.model_copy(update={"spec": spec.model_copy(update=update)})
+    measured = replace(recording, meta=meta.model_copy(update={"imu": imu}))
+    return measured, replace(rest, taken=tuple(update))
