@@ -4,6 +4,7 @@ than its datasheet, the σ that keeps its promise with it and breaks it without.
 
 from __future__ import annotations
 
+import json
 import math
 from dataclasses import replace
 from pathlib import Path
@@ -15,6 +16,7 @@ from fusion.config import ImuTuning, load_config
 from fusion.engine import Engine
 from fusion.metrics import interpolate_truth
 from fusion.noise_at_rest import TOLERANCE, WINDOW_S, measure, with_noise_at_rest
+from fusion.outputs import summary
 from fusion.recording import ImuData, Recording, read_recording
 from fusion.sim.simulate import simulate
 from tests.plugin_support import recording_meta
@@ -107,6 +109,23 @@ def test_a_hostile_sample_in_the_window_does_not_move_the_measurement() -> None:
     gyro[500] = [30.0, -30.0, 30.0]
     rest = measure(_with_imu(rec, gyro, rec.imu.accel))
     assert rest.gyro_factor == pytest.approx(measure(rec).gyro_factor, rel=0.02)
+
+
+def test_the_run_reports_what_it_measured_and_took() -> None:
+    """The summary's ``IMU noise`` line, ``metrics.json``'s ``imu_noise_at_rest`` and
+    ``RunResult.rest_noise``; ``imu.noise_at_rest: false`` measures nothing."""
+    rec = _at_rest(3.0, duration_s=30.0)
+    config = load_config(REPO / "configs" / "sins_only.yaml")
+    result = Engine(config, rec).run()
+    assert result.rest_noise.taken == ("gyro_arw_deg_rth", "accel_vrw_mg_rthz")
+    assert f"IMU noise  {result.rest_noise.describe()}" in summary(result, rec)
+    reported = json.loads(json.dumps(result.rest_noise.to_dict()))
+    assert reported["taken"] == ["gyro_arw_deg_rth", "accel_vrw_mg_rthz"]
+    assert reported["gyro_factor"] == pytest.approx(3.0, rel=0.1)
+    config.imu.noise_at_rest = False
+    off = Engine(config, rec).run()
+    assert off.rest_noise.taken == () and "off" in off.rest_noise.reason
+    assert "IMU noise" not in summary(off, rec)
 
 
 # ------------------------------------------------------------------ σ on a noisier-than-stated IMU
