@@ -20,8 +20,9 @@ gravity and any bias), robust to a stray sample through the median absolute devi
 window is at rest when no axis moves beyond its noise: the spread of x about its median,
 ``1.4826 · MAD(x)``, stays within :data:`AT_REST_RATIO` × σ̂_white on every axis (a turn, a
 tilt or a start adds a signal that differences remove and the spread does not); and what it
-holds is white noise when successive samples are uncorrelated (:data:`WHITE_CORRELATION`: a
-vibration is not a random walk, and an idling engine's is no sensor's noise). At rest, the
+holds is white noise when its successive differences are correlated as white noise's are, one
+to three samples apart (:data:`WHITE_CORRELATION`: a vibration is not a random walk, and an
+idling engine's is no sensor's noise). At rest, the
 median of the three axes over the datasheet's per-sample σ (``N·√rate`` for an ARW or VRW
 ``N``) is the sensor's factor; where it exceeds :data:`TOLERANCE`, the datasheet figure is
 replaced by the measured one for the whole run, as an INS's static alignment measures before it
@@ -52,10 +53,14 @@ MIN_SAMPLES = 200
 """Fewer samples in the window measure nothing."""
 AT_REST_RATIO = 2.0
 """An axis whose spread about its median exceeds this many σ̂_white is moving."""
-WHITE_CORRELATION = 0.1
-"""Largest correlation of successive samples of white noise (1/√N is 0.022 for 2 000 samples):
-beyond it the window holds vibration (an engine idling, a conveyor running) or slow motion,
-whose variance is no random walk."""
+WHITE_CORRELATION = 0.15
+"""Largest departure of the differences' correlation at lags 1 … :data:`WHITE_LAGS` from white
+noise's (for white noise its σ is √(1.5/N), 0.027 for 2 000 samples: 0.15 is 5.5σ, as 18 such
+figures are tested): beyond it the window holds a vibration (an engine idling, a conveyor
+running), whose variance is no random walk."""
+WHITE_LAGS = 3
+"""Lags tested: a sinusoid at a quarter of the sample rate looks white at lag 1 but not at lag
+2, and no frequency looks white at all three."""
 TOLERANCE = 1.5
 """A noise within 1.5× the datasheet's is taken as the datasheet says: a σ off by less is within
 the band [0.6, 1.5] of RMS(ε/σ) that the project holds a consistent filter to, and within the
@@ -107,11 +112,17 @@ def white_sigma(x: NDArray[np.float64]) -> NDArray[np.float64]:
     return _MAD * np.median(np.abs(d - np.median(d, axis=0)), axis=0) / math.sqrt(2.0)
 
 
-def lag_one_correlation(x: NDArray[np.float64]) -> NDArray[np.float64]:
-    """Per-column correlation of successive samples of ``x`` about the column's median (0 for
-    white noise, ±1/√N)."""
-    x = x - np.median(x, axis=0)
-    return np.asarray(np.sum(x[1:] * x[:-1], axis=0) / np.sum(x * x, axis=0))
+def whiteness(x: NDArray[np.float64], lags: int = WHITE_LAGS) -> NDArray[np.float64]:
+    """Per column of ``x``, how far its successive differences d are from those of white noise:
+    the correlation of d with itself 1 … ``lags`` samples on, less white noise's (−½ at lag 1,
+    0 beyond), as a lags × columns array (each ±1/√N for white noise). Differences leave out a
+    slow drift (a bias wandering over the window), which is no vibration."""
+    d = np.diff(x, axis=0)
+    d = d - np.median(d, axis=0)
+    power = np.sum(d * d, axis=0)
+    rho = np.array([np.sum(d[k:] * d[:-k], axis=0) / power for k in range(1, lags + 1)])
+    rho[0] += 0.5
+    return rho
 
 
 def _spread(x: NDArray[np.float64]) -> NDArray[np.float64]:
@@ -132,7 +143,7 @@ def measure(recording: Recording) -> RestNoise:
         return RestNoise(reason="an axis shows no noise (quantized below its resolution)")
     if np.any(_spread(samples) > AT_REST_RATIO * white):
         return RestNoise(reason=f"the IMU is not at rest in the first {WINDOW_S:g} s")
-    if np.any(np.abs(lag_one_correlation(samples)) > WHITE_CORRELATION):
+    if np.any(np.abs(whiteness(samples)) > WHITE_CORRELATION):
         return RestNoise(reason=f"the IMU's noise in the first {WINDOW_S:g} s is not white")
     root_rate = math.sqrt(1.0 / float(np.median(np.diff(imu.t[window]))))
     gyro = math.radians(spec.gyro_arw_deg_rth) / 60.0 * root_rate

@@ -88,11 +88,12 @@ def test_a_start_in_motion_or_with_vibration_measures_nothing() -> None:
     turning = rec.imu.gyro.copy()
     turning[:, 2] += 0.02 * np.sin(2 * np.pi * t / 15.0)  # a slow turn, 1°/s
     assert "not at rest" in measure(_with_imu(rec, turning, rec.imu.accel)).reason
-    shaking = rec.imu.accel.copy()
-    shaking[:, 0] += 3 * ACCEL_SIGMA * np.sin(2 * np.pi * 7.0 * t)  # 7 Hz, 3× the noise
-    vibrating = measure(_with_imu(rec, rec.imu.gyro, shaking))
-    assert vibrating.reason != ""
-    assert with_noise_at_rest(_with_imu(rec, rec.imu.gyro, shaking), ImuTuning())[1].taken == ()
+    for hz, reason in ((7.0, "not"), (0.25 * RATE, "not white")):
+        shaking = rec.imu.accel.copy()
+        shaking[:, 0] += 9 * ACCEL_SIGMA * np.sin(2 * np.pi * hz * t)  # 3× the sensor's noise
+        vibrating = _with_imu(rec, rec.imu.gyro, shaking)
+        assert reason in measure(vibrating).reason  # at a quarter of the rate: by its lag 2
+        assert with_noise_at_rest(vibrating, ImuTuning())[1].taken == ()
 
 
 def test_a_recording_shorter_than_the_window_or_without_a_datasheet_measures_nothing() -> None:
