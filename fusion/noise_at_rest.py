@@ -6,7 +6,7 @@ loose on its mount, or simply a worse part than the one the datasheet was writte
 filter's angle and velocity random walks (``Q``), the ZARU's noise and the ZUPT's thresholds are
 all derived from the datasheet's figures (``meta.yaml`` ``imu.spec``), so an IMU twice as noisy
 as stated makes every one of them half what it should be: the filter's σ then promises twice
-what it keeps (harsh random worlds, IMU 2–5× its datasheet: RMS(ε/σ) 1.8–2.3).
+what it keeps (docs/design/2026-12-01-noise-at-rest.md).
 
 The white noise of a sensor at rest is directly measurable (it is the short-τ branch of the
 Allan deviation: IEEE Std 952-1997 App. C, El-Sheimy, Hou & Niu, *IEEE Trans. Instrum. Meas.*
@@ -66,6 +66,8 @@ TOLERANCE = 1.5
 the band [0.6, 1.5] of RMS(ε/σ) that the project holds a consistent filter to, and within the
 spread between a datasheet's typical and maximum figures. The check is for a datasheet that is
 grossly wrong for the unit."""
+CLIP = 10.0
+"""A difference beyond this many σ̂ is a stray sample: :func:`whiteness` clips it there."""
 CAP = 10.0
 """A factor beyond this is vibration or motion, not a sensor's white noise."""
 _MAD = 1.4826  # σ of a normal distribution per median absolute deviation
@@ -115,10 +117,13 @@ def white_sigma(x: NDArray[np.float64]) -> NDArray[np.float64]:
 def whiteness(x: NDArray[np.float64], lags: int = WHITE_LAGS) -> NDArray[np.float64]:
     """Per column of ``x``, how far its successive differences d are from those of white noise:
     the correlation of d with itself 1 … ``lags`` samples on, less white noise's (−½ at lag 1,
-    0 beyond), as a lags × columns array (each ±1/√N for white noise). Differences leave out a
-    slow drift (a bias wandering over the window), which is no vibration."""
+    0 beyond), as a lags × columns array (each ±√(1.5/N) for white noise). Differences leave
+    out a slow drift (a bias wandering over the window), which is no vibration; a stray sample
+    is clipped to :data:`CLIP` σ̂ so that it cannot carry the sums."""
     d = np.diff(x, axis=0)
     d = d - np.median(d, axis=0)
+    bound = CLIP * _MAD * np.median(np.abs(d), axis=0)
+    d = np.clip(d, -bound, bound)
     power = np.sum(d * d, axis=0)
     rho = np.array([np.sum(d[k:] * d[:-k], axis=0) / power for k in range(1, lags + 1)])
     rho[0] += 0.5
