@@ -44,6 +44,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from fusion.config import ImuTuning
+from fusion.error_model import ImuNoise
 from fusion.recording import Recording
 
 WINDOW_S = 20.0
@@ -71,7 +72,6 @@ CLIP = 10.0
 CAP = 10.0
 """A factor beyond this is vibration or motion, not a sensor's white noise."""
 _MAD = 1.4826  # σ of a normal distribution per median absolute deviation
-_G = 9.80665
 
 
 @dataclass(frozen=True)
@@ -108,30 +108,25 @@ class RestNoise:
         }
 
 
-def white_sigma(x: NDArray[np.float64]) -> NDArray[np.float64]:
-    """Per-column σ of the white noise in ``x`` (samples × axes), from successive differences."""
-    d = np.diff(x, axis=0)
-    return _MAD * np.median(np.abs(d - np.median(d, axis=0)), axis=0) / math.sqrt(2.0)
+def robust_sigma(x: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Per column of ``x`` (samples × axes), its σ from the median absolute deviation about its
+    median: a normal distribution's σ, unmoved by a stray sample."""
+    return _MAD * np.median(np.abs(x - np.median(x, axis=0)), axis=0)
 
 
-def whiteness(x: NDArray[np.float64], lags: int = WHITE_LAGS) -> NDArray[np.float64]:
-    """Per column of ``x``, how far its successive differences d are from those of white noise:
-    the correlation of d with itself 1 … ``lags`` samples on, less white noise's (−½ at lag 1,
-    0 beyond), as a lags × columns array (each ±√(1.5/N) for white noise). Differences leave
-    out a slow drift (a bias wandering over the window), which is no vibration; a stray sample
-    is clipped to :data:`CLIP` σ̂ so that it cannot carry the sums."""
-    d = np.diff(x, axis=0)
+def whiteness(d: NDArray[np.float64], lags: int = WHITE_LAGS) -> NDArray[np.float64]:
+    """Per column of the successive differences ``d`` of a window, how far they are from those
+    of white noise: the correlation of d with itself 1 … ``lags`` samples on, less white
+    noise's (−½ at lag 1, 0 beyond), as a lags × columns array (each ±√(1.5/N) for white
+    noise). Differences leave out a slow drift (a bias wandering over the window), which is no
+    vibration; a stray sample is clipped to :data:`CLIP` σ̂ so that it cannot carry the sums."""
     d = d - np.median(d, axis=0)
-    bound = CLIP * _MAD * np.median(np.abs(d), axis=0)
+    bound = CLIP * robust_sigma(d)
     d = np.clip(d, -bound, bound)
     power = np.sum(d * d, axis=0)
     rho = np.array([np.sum(d[k:] * d[:-k], axis=0) / power for k in range(1, lags + 1)])
     rho[0] += 0.5
     return rho
-
-
-def _spread(x: NDArray[np.float64]) -> NDArray[np.float64]:
-    return _MAD * np.median(np.abs(x - np.median(x, axis=0)), axis=0)
 
 
 def measure(recording: Recording) -> RestNoise:
@@ -143,19 +138,24 @@ def measure(recording: Recording) -> RestNoise:
     if int(window.sum()) < MIN_SAMPLES or imu.t[-1] - imu.t[0] < WINDOW_S:
         return RestNoise(reason=f"fewer than {MIN_SAMPLES} samples in the first {WINDOW_S:g} s")
     samples = np.hstack([imu.gyro[window], imu.accel[window]])
-    white = white_sigma(samples)
+    differences = np.diff(samples, axis=0)
+    white = robust_sigma(differences) / math.sqrt(2.0)  # per sample
     if not np.all(white > 0):
         return RestNoise(reason="an axis shows no noise (quantized below its resolution)")
-    if np.any(_spread(samples) > AT_REST_RATIO * white):
+    if np.any(robust_sigma(samples) > AT_REST_RATIO * white):
         return RestNoise(reason=f"the IMU is not at rest in the first {WINDOW_S:g} s")
-    if np.any(np.abs(whiteness(samples)) > WHITE_CORRELATION):
+    if np.any(np.abs(whiteness(differences)) > WHITE_CORRELATION):
         return RestNoise(reason=f"the IMU's noise in the first {WINDOW_S:g} s is not white")
+    stated = ImuNoise.from_datasheet(
+        gyro_arw_deg_rth=spec.gyro_arw_deg_rth,
+        accel_vrw_mg_rthz=spec.accel_vrw_mg_rthz,
+        gyro_bias_deg_h=0.0,
+        accel_bias_mg=0.0,
+    )
     root_rate = math.sqrt(1.0 / float(np.median(np.diff(imu.t[window]))))
-    gyro = math.radians(spec.gyro_arw_deg_rth) / 60.0 * root_rate
-    accel = spec.accel_vrw_mg_rthz * 1e-3 * _G * root_rate
     return RestNoise(
-        gyro_factor=float(np.median(white[:3]) / gyro),
-        accel_factor=float(np.median(white[3:]) / accel),
+        gyro_factor=float(np.median(white[:3]) / (stated.gyro_arw * root_rate)),
+        accel_factor=float(np.median(white[3:]) / (stated.accel_vrw * root_rate)),
     )
 
 
