@@ -606,6 +606,7 @@ class Engine:
             events = len(bank.faults)
             dt = te - t_cov
             phi = None
+            held = None
             if dt > 1e-9:
                 f_n = specific_force(sins.take_velocity_increment() / dt, dt)
                 common = bank.common_covariance()
@@ -625,12 +626,15 @@ class Engine:
                 t_cov = te
                 if jumps is not None:
                     jumps.step(te, bank)
+                    held = jumps.held_noise(dt, bank)
             widened: list[FaultEvent] = []
             released = (
                 self._process_noise(sources[i:j], indices[i:j], te, widened)
                 if self._noise_sources
                 else None
             )
+            if held is not None:
+                released = np.diag(held) if released is None else released + np.diag(held)
             if released is not None:  # an identity time update: the smoother's prior has it
                 if self._analysis is not None:
                     self._analysis.add(released, *self._point(sins.nav))

@@ -119,6 +119,11 @@ class StateBlock:
     leaves_rest
         +1 or −1: the only direction in which the state leaves ``rest`` (a slipping wheel turns
         more than the machine travels, so its slip ratio only rises from 0); 0: either.
+    rest_return_s
+        Mean time a state held away from ``rest`` stays there before it returns on its own (a
+        slip ends after seconds to a minute, whether or not anything sees it end): while held,
+        its variance grows at the rate of that return's (:mod:`fusion.jumps`). ``None``: it
+        returns only when a jump back is detected or its plugin reports it at rest.
     bound
         The largest magnitude the state can physically reach: a jump that would take it beyond
         is not taken in (:mod:`fusion.jumps`), and an update that takes the estimate beyond is
@@ -137,6 +142,7 @@ class StateBlock:
     may_jump: bool = False
     rest: float | None = None
     leaves_rest: int = 0
+    rest_return_s: float | None = None
     bound: float | None = None
     unit: str = ""
 

@@ -65,6 +65,17 @@ its onset: an end left undetected keeps the wheel's scale wrong until the next s
 and the federated filter then isolated the UWB local that disagreed with it
 (docs/design/2026-11-29-slip-ends-and-skids.md).
 
+A held state's uncertainty (:meth:`JumpDetector.held_noise`). A slip ends after seconds to a
+minute whether or not anything sees it end, and one whose end the tests miss (a harsh world's
+skid ending as every anchor went into NLOS: the return test at 10.84 against 10.83 for 40 s)
+left the filter 0.37 m off at an RMS(ε/σ) of 10. A state given a mean time ``τ`` away from rest
+(:attr:`fusion.error_model.StateBlock.rest_return_s`) gains, while held, the variance of the
+chance ``dt/τ`` that it has returned — the jump-Markov model's two places collapsed to one
+Gaussian by its second moment, as in a GPB1 filter — and so lets the other sensors move it when
+they disagree with it. Such a state can follow a gradual end without a step for the return test
+to find; once its estimate is within 1σ of rest it is set there, as a return is
+(docs/design/2026-12-01-held-slip-uncertainty.md).
+
 A jump under way explains other sensors' innovations too. :meth:`JumpDetector.explanation`
 gives the likeliest open hypothesis once its ratio passes η, in either direction; the federated
 filter asks it before isolating a local (:class:`fusion.federated.FederatedFilter`).
@@ -112,6 +123,7 @@ class JumpState:
     leaves_rest: int = 0
     block: str = ""
     bound: float | None = None
+    rest_return_s: float | None = None
 
 
 def jump_states(layout: StateLayout) -> list[JumpState]:
@@ -124,7 +136,13 @@ def jump_states(layout: StateLayout) -> list[JumpState]:
                 name = block.name if block.size == 1 else f"{block.name}.{label}"
                 states.append(
                     JumpState(
-                        start + k, name, block.rest, block.leaves_rest, block.name, block.bound
+                        start + k,
+                        name,
+                        block.rest,
+                        block.leaves_rest,
+                        block.name,
+                        block.bound,
+                        block.rest_return_s,
                     )
                 )
     return states
@@ -188,6 +206,30 @@ class JumpDetector:
         prior = np.diag(layout.initial_covariance())
         self._prior_variance = np.array([prior[s.index] for s in states])
         self._by_name = {s.name: k for k, s in enumerate(states)}
+        self._return_rate = np.array(
+            [0.0 if s.rest_return_s is None else 1.0 / s.rest_return_s for s in states]
+        )
+
+    def held_noise(self, dt: float, bank: FilterBank) -> NDArray[np.float64] | None:
+        """The variance (full layout, the diagonal) that held states gain over ``dt``, or None.
+
+        A state held away from rest returns there as a Poisson event of rate ``1/τ``
+        (:attr:`fusion.error_model.StateBlock.rest_return_s`): over dt it is back at ``r`` with
+        probability ``q = dt/τ``, and the Gaussian matched to that mixture's second moment about
+        x̂ has ``q (x̂ − r)²`` more variance. The mean stays (the updates that follow show which
+        it was). A mixture of the two places has at most ``(x̂ − r)²/4`` of spread, so growth
+        stops once the state's σ reaches half its distance from rest."""
+        held = ~self._at_rest & (self._return_rate > 0) & np.isfinite(self._rest)
+        if not held.any():
+            return None
+        x, p = bank.estimate()
+        noise = np.zeros(self.layout.dim)
+        for k in np.flatnonzero(held):
+            j = self.states[k].index
+            offset2 = (x[j] - self._rest[k]) ** 2
+            if p[j, j] < offset2 / 4.0:
+                noise[j] = offset2 * dt * self._return_rate[k]
+        return noise if noise.any() else None
 
     def step(self, t: float, bank: FilterBank) -> None:
         """Open a hypothesis per state every ``spacing_s``; drop those older than the window."""
@@ -295,7 +337,7 @@ class JumpDetector:
         held = ~self._at_rest[self._state] & np.isfinite(rest) & (self._c > 0)
         held &= self._n >= self.options.min_updates
         if not held.any():
-            return None
+            return self._estimate_at_rest(t, bank)
         mean = np.where(held, rest - self._held, 0.0)  # the jump back to rest, N(mean, v)
         v, c, d = self._held_variance, np.where(held, self._c, 1.0), self._d
         spread = 1.0 + c * v
@@ -304,7 +346,7 @@ class JumpDetector:
         statistic = np.where(held & (misfit <= RETURN_MISFIT), statistic, -np.inf)
         best = int(np.argmax(statistic))
         if statistic[best] <= self.return_threshold:
-            return None
+            return self._estimate_at_rest(t, bank)
         jump = (mean[best] / v[best] + d[best]) / (1.0 / v[best] + c[best])
         variance = 1.0 / (1.0 / v[best] + c[best])
         k, onset = int(self._state[best]), float(self._onset[best])
@@ -319,6 +361,30 @@ class JumpDetector:
         reason = f"back to rest {state.rest:g} at {onset:.1f} s (return test, was {before:+.4g})"
         ratio = float(statistic[best])
         return FaultEvent(t, state.name, ratio, self.return_threshold, JUMP, reason)
+
+    def _estimate_at_rest(self, t: float, bank: FilterBank) -> FaultEvent | None:
+        """Set a held state whose σ grows (:meth:`held_noise`) back at rest once its estimate
+        is nearer rest than its own σ. Such a state follows the updates back towards rest
+        without a step for the return test to find, and would otherwise stay a free scale
+        error beside δk_D. Growth alone keeps it at least 2σ from rest, so only the data bring
+        it within 1σ."""
+        held = np.flatnonzero(~self._at_rest & np.isfinite(self._rest) & (self._return_rate > 0))
+        if not held.size:
+            return None
+        x, p = bank.estimate()
+        for k in held:
+            state = self.states[k]
+            before, variance = float(x[state.index]), float(p[state.index, state.index])
+            statistic = (before - self._rest[k]) ** 2 / variance
+            if statistic >= 1.0:
+                continue
+            bank.condition(state.index, float(self._rest[k]))
+            self._keep(self._state != k, bank)
+            self._at_rest[k] = True
+            self._report(state, t, before)
+            reason = f"back to rest {self._rest[k]:g} (its estimate {before:+.4g} within 1σ)"
+            return FaultEvent(t, state.name, statistic, 1.0, JUMP, reason)
+        return None
 
     def rest(self, t: float, bank: FilterBank, name: str) -> FaultEvent | None:
         """The plugin reports state ``name`` physically back at rest (a wheel standing still
