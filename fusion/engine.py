@@ -606,7 +606,6 @@ class Engine:
             events = len(bank.faults)
             dt = te - t_cov
             phi = None
-            held = None
             if dt > 1e-9:
                 f_n = specific_force(sins.take_velocity_increment() / dt, dt)
                 common = bank.common_covariance()
@@ -621,20 +620,21 @@ class Engine:
                     next_gap = next(gaps, None)
                 if self._analysis is not None:
                     self._analysis_predict(sins, f_n, dt, gap_noise)
+                held = jumps.held_return(dt, bank) if jumps is not None else None
+                if held is not None:  # held states that may have returned to rest
+                    phi = held.decay[:, None] * phi
+                    qd = qd + np.diag(held.variance)
                 bank.predict(phi, qd)
                 observed.predict(phi, qd)
                 t_cov = te
                 if jumps is not None:
                     jumps.step(te, bank)
-                    held = jumps.held_noise(dt, bank)
             widened: list[FaultEvent] = []
             released = (
                 self._process_noise(sources[i:j], indices[i:j], te, widened)
                 if self._noise_sources
                 else None
             )
-            if held is not None:
-                released = np.diag(held) if released is None else released + np.diag(held)
             if released is not None:  # an identity time update: the smoother's prior has it
                 if self._analysis is not None:
                     self._analysis.add(released, *self._point(sins.nav))
@@ -1023,7 +1023,9 @@ class Engine:
         if correlated is not None:
             offset = self.stored_error_offsets[src]
             correlated = replace(correlated, columns=correlated.columns + offset)
-        signature = jumps.innovation_signature(bank, src, rows) if jumps is not None else None
+        signature = (
+            jumps.innovation_signature(bank, src, rows, layout) if jumps is not None else None
+        )
         try:
             res = self._kalman_update(kf, m, rows, self.gates[src], shared, correlated, ctx)
         except np.linalg.LinAlgError:  # S not positive definite: the update is not usable

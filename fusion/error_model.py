@@ -120,10 +120,11 @@ class StateBlock:
         +1 or −1: the only direction in which the state leaves ``rest`` (a slipping wheel turns
         more than the machine travels, so its slip ratio only rises from 0); 0: either.
     rest_return_s
-        Mean time a state held away from ``rest`` stays there before it returns on its own (a
-        slip ends after seconds to a minute, whether or not anything sees it end): while held,
-        its variance grows at the rate of that return's (:mod:`fusion.jumps`). ``None``: it
-        returns only when a jump back is detected or its plugin reports it at rest.
+        Mean time a state held away from ``rest`` (which must be 0) stays there before it
+        returns on its own (a slip ends after seconds to a minute, whether or not anything sees
+        it end): while held, it decays towards rest and its variance grows as that return's
+        chance (:mod:`fusion.jumps`). ``None``: it returns only when a jump back is detected or
+        its plugin reports it at rest.
     bound
         The largest magnitude the state can physically reach: a jump that would take it beyond
         is not taken in (:mod:`fusion.jumps`), and an update that takes the estimate beyond is
@@ -147,6 +148,11 @@ class StateBlock:
     unit: str = ""
 
     def __post_init__(self) -> None:
+        if self.rest_return_s is not None and self.rest != 0.0:
+            raise ValueError(
+                f"state block {self.name!r}: rest_return_s needs a rest value of 0 (the return"
+                f" is a decay towards it), not {self.rest!r}"
+            )
         if self.unit not in STATE_UNITS:
             raise ValueError(
                 f"state block {self.name!r}: unit {self.unit!r} is not one of {list(STATE_UNITS)}"

@@ -65,15 +65,15 @@ its onset: an end left undetected keeps the wheel's scale wrong until the next s
 and the federated filter then isolated the UWB local that disagreed with it
 (docs/design/2026-11-29-slip-ends-and-skids.md).
 
-A held state's uncertainty (:meth:`JumpDetector.held_noise`). A slip ends after seconds to a
+A held state's return (:meth:`JumpDetector.held_return`). A slip ends after seconds to a
 minute whether or not anything sees it end, and one whose end the tests miss (a harsh world's
 skid ending as every anchor went into NLOS: the return test at 10.84 against 10.83 for 40 s)
 left the filter 0.37 m off at an RMS(ε/σ) of 10. A state given a mean time ``τ`` away from rest
-(:attr:`fusion.error_model.StateBlock.rest_return_s`) gains, while held, the variance of the
-chance ``dt/τ`` that it has returned — the jump-Markov model's two places collapsed to one
-Gaussian by its second moment, as in a GPB1 filter — and so lets the other sensors move it when
-they disagree with it. Such a state can follow a gradual end without a step for the return test
-to find; once its estimate is within 1σ of rest it is set there, as a return is
+(:attr:`fusion.error_model.StateBlock.rest_return_s`) is, while held, the Gaussian collapse of
+the jump-Markov model's two places (as in a GPB1 filter): it decays towards rest and gains the
+variance of the chance that it has returned, so the other sensors can move it when they
+disagree with it. It can then follow an end without a step for the return test to find; once
+its estimate is within 1σ of rest it is set there, as a return is
 (docs/design/2026-12-01-held-slip-uncertainty.md).
 
 A jump under way explains other sensors' innovations too. :meth:`JumpDetector.explanation`
@@ -149,6 +149,15 @@ def jump_states(layout: StateLayout) -> list[JumpState]:
 
 
 @dataclass(frozen=True)
+class HeldReturn:
+    """The held states' part of a time update (:meth:`JumpDetector.held_return`): Φ's rows
+    scaled by ``decay`` and ``variance`` added to the diagonal of Q (full layout)."""
+
+    decay: NDArray[np.float64]
+    variance: NDArray[np.float64]
+
+
+@dataclass(frozen=True)
 class Explanation:
     """A jump under way that explains the innovations: the likeliest open hypothesis, past the
     return test's threshold (:meth:`JumpDetector.explanation`). ``allowed``: the detector may
@@ -206,30 +215,35 @@ class JumpDetector:
         prior = np.diag(layout.initial_covariance())
         self._prior_variance = np.array([prior[s.index] for s in states])
         self._by_name = {s.name: k for k, s in enumerate(states)}
+        self._seen = np.zeros(len(states), bool)  # by the update about to be observed
         self._return_rate = np.array(
             [0.0 if s.rest_return_s is None else 1.0 / s.rest_return_s for s in states]
         )
 
-    def held_noise(self, dt: float, bank: FilterBank) -> NDArray[np.float64] | None:
-        """The variance (full layout, the diagonal) that held states gain over ``dt``, or None.
+    def held_return(self, dt: float, bank: FilterBank) -> HeldReturn | None:
+        """The transition over ``dt`` of the states held away from rest, or None.
 
         A state held away from rest returns there as a Poisson event of rate ``1/τ``
-        (:attr:`fusion.error_model.StateBlock.rest_return_s`): over dt it is back at ``r`` with
-        probability ``q = dt/τ``, and the Gaussian matched to that mixture's second moment about
-        x̂ has ``q (x̂ − r)²`` more variance. The mean stays (the updates that follow show which
-        it was). A mixture of the two places has at most ``(x̂ − r)²/4`` of spread, so growth
-        stops once the state's σ reaches half its distance from rest."""
-        held = ~self._at_rest & (self._return_rate > 0) & np.isfinite(self._rest)
+        (:attr:`fusion.error_model.StateBlock.rest_return_s`): over dt it is back at rest
+        (0) with probability ``q = dt/τ``. The Gaussian with that two-place mixture's mean and
+        variance (a GPB1 collapse) has
+
+            x̂' = (1 − q) x̂,    P' = (1 − q) P + q (1 − q) x̂²
+
+        that is, a decay ``(1 − q)`` in Φ and ``q (1 − q)(P + x̂²)`` of process noise. Unseen,
+        a held state so decays to rest over τ, its variance growing by at most x̂²/2."""
+        held = ~self._at_rest & (self._return_rate > 0)
         if not held.any():
             return None
         x, p = bank.estimate()
-        noise = np.zeros(self.layout.dim)
+        decay = np.ones(self.layout.dim)
+        variance = np.zeros(self.layout.dim)
         for k in np.flatnonzero(held):
             j = self.states[k].index
-            offset2 = (x[j] - self._rest[k]) ** 2
-            if p[j, j] < offset2 / 4.0:
-                noise[j] = offset2 * dt * self._return_rate[k]
-        return noise if noise.any() else None
+            q = min(dt * self._return_rate[k], 1.0)
+            decay[j] = 1.0 - q
+            variance[j] = q * (1.0 - q) * (p[j, j] + x[j] ** 2)
+        return HeldReturn(decay, variance)
 
     def step(self, t: float, bank: FilterBank) -> None:
         """Open a hypothesis per state every ``spacing_s``; drop those older than the window."""
@@ -254,10 +268,21 @@ class JumpDetector:
         self._n = np.append(self._n, np.zeros(len(self.states), np.intp))
 
     def innovation_signature(
-        self, bank: FilterBank, plugin: int, h: NDArray[np.float64]
+        self, bank: FilterBank, plugin: int, h: NDArray[np.float64], layout: StateLayout
     ) -> NDArray[np.float64]:
-        """``H E`` of the filter that serves ``plugin``, taken before its update changes E."""
+        """``H E`` of the filter that serves ``plugin`` (rows ``h`` in its ``layout``), taken
+        before its update changes E. Also notes which watched states the rows see (for
+        :meth:`observe`)."""
+        for k, state in enumerate(self.states):
+            column = self._local_column(state, layout)
+            self._seen[k] = column is not None and bool(np.any(h[:, column]))
         return h @ bank.signatures_of(plugin)
+
+    def _local_column(self, state: JumpState, layout: StateLayout) -> int | None:
+        """The state's column in ``layout`` (a federated local's), or None without it."""
+        if state.block not in layout:
+            return None
+        return layout.slice(state.block).start + state.index - self.layout.slice(state.block).start
 
     def observe(
         self,
@@ -363,12 +388,13 @@ class JumpDetector:
         return FaultEvent(t, state.name, ratio, self.return_threshold, JUMP, reason)
 
     def _estimate_at_rest(self, t: float, bank: FilterBank) -> FaultEvent | None:
-        """Set a held state whose σ grows (:meth:`held_noise`) back at rest once its estimate
-        is nearer rest than its own σ. Such a state follows the updates back towards rest
-        without a step for the return test to find, and would otherwise stay a free scale
-        error beside δk_D. Growth alone keeps it at least 2σ from rest, so only the data bring
-        it within 1σ."""
-        held = np.flatnonzero(~self._at_rest & np.isfinite(self._rest) & (self._return_rate > 0))
+        """Set a held state that may return on its own (:meth:`held_return`) back at rest once
+        its estimate, after an update that sees it, is nearer rest than its own σ. Such a state
+        decays towards rest, and follows the updates there, without a step for the return test
+        to find; it would otherwise stay a small free scale error beside δk_D. Unseen (an
+        odometer dropout), its decay alone would bring it within 1σ after τ·ln 2 and end a slip
+        that the next reading still shows."""
+        held = np.flatnonzero(~self._at_rest & (self._return_rate > 0) & self._seen)
         if not held.size:
             return None
         x, p = bank.estimate()

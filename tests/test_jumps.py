@@ -44,6 +44,16 @@ def _toy_layout(
     )
 
 
+def _predict(bank: CentralizedFilter, detector: JumpDetector, watched: bool) -> None:
+    """The toy's time update, with the held slip's return (:meth:`JumpDetector.held_return`)
+    once the detector watches."""
+    held = detector.held_return(DT, bank) if watched else None
+    if held is None:
+        bank.predict(PHI, QD)
+    else:
+        bank.predict(held.decay[:, None] * PHI, QD + np.diag(held.variance))
+
+
 def _toy_run(
     rng: np.random.Generator,
     slip: tuple[int, int, float],
@@ -65,14 +75,11 @@ def _toy_run(
     for k in range(-settle, steps):
         truth = PHI @ truth + np.array([rng.normal(0.0, WALK * np.sqrt(DT)), 0.0, 0.0])
         truth[2] = ratio if start <= k < end else 0.0
-        bank.predict(PHI, QD)
+        _predict(bank, detector, k >= 0)
         if k >= 0:
             detector.step(k * DT, bank)
-            held = detector.held_noise(DT, bank)
-            if held is not None:
-                bank.predict(np.eye(3), np.diag(held))
         z = H @ truth + rng.normal(0.0, SPEED_NOISE, 1)
-        signature = detector.innovation_signature(bank, 0, H)
+        signature = detector.innovation_signature(bank, 0, H, layout)
         event = detector.observe(k * DT, bank, 0, signature, bank.kf.update(z, H, R))
         if event is not None:
             events.append(event.reason)
@@ -181,7 +188,7 @@ def test_an_end_past_rest_is_back_at_rest_for_a_one_way_state(leaves_rest: int) 
             bank.kf.x[2] -= 0.2
             bank.kf.x[0] += 0.2 * SPEED
         z = H @ truth + rng.normal(0.0, SPEED_NOISE, 1)
-        signature = detector.innovation_signature(bank, 0, H)
+        signature = detector.innovation_signature(bank, 0, H, layout)
         event = detector.observe(k * DT, bank, 0, signature, bank.kf.update(z, H, R))
         if event is not None:
             events.append(event.reason)
@@ -222,11 +229,11 @@ def test_the_return_test_ends_slips_the_glr_leaves_held() -> None:
     assert early < held_s / 300.0
 
 
-def test_a_held_slip_grows_uncertain_as_one_that_may_have_ended() -> None:
-    """A 30 % slip taken in and held, with a mean duration τ = 20 s: unobserved, the slip's
-    variance grows by ŝ²·dt/τ per step (the moment-matched chance dt/τ that it has ended) until
-    its σ is half its distance from rest (a mixture of ŝ and 0 spreads no wider), and a
-    slip's end then within 2σ; a state at rest, or one without τ, gains nothing."""
+def test_a_held_slip_decays_to_rest_as_one_that_may_have_ended() -> None:
+    """A 30 % slip taken in and held, with a mean duration τ = 20 s: each step is the moment-
+    matched chance q = dt/τ that it has ended, x̂ → (1 − q) x̂ and P → (1 − q) P + q (1 − q) x̂²;
+    unobserved for n steps it is the mixture's, with r = (1 − q)ⁿ the chance it still slips:
+    x̂ r and P r + r (1 − r) x̂². A state at rest, or one without τ, has no such transition."""
     for tau in (20.0, None):
         rng = np.random.default_rng(8)
         bank, detector, events, _ = _toy_run(
@@ -234,24 +241,24 @@ def test_a_held_slip_grows_uncertain_as_one_that_may_have_ended() -> None:
         )
         assert len(events) == 1 and "jumped by +" in events[0], events
         slip, variance = bank.kf.x[2], bank.kf.P[2, 2]
-        held = detector.held_noise(DT, bank)
+        held = detector.held_return(DT, bank)
         if tau is None:
             assert held is None
             continue
         assert held is not None
-        assert held[2] == pytest.approx(slip**2 * DT / tau, rel=1e-12)
-        assert not held[:2].any()
-        for _ in range(int(5 * tau / DT)):  # nothing observes the slip: it may have ended
-            noise = detector.held_noise(DT, bank)
-            if noise is not None:
-                bank.predict(np.eye(3), np.diag(noise))
-        sigma = np.sqrt(bank.kf.P[2, 2])
-        assert np.sqrt(variance) < 0.5 * abs(slip) <= sigma < 0.5 * abs(slip) + 0.01
-        assert abs(slip) / sigma <= 2.0  # the slip's end, unseen
+        q = DT / tau
+        np.testing.assert_allclose(held.decay, [1.0, 1.0, 1.0 - q])
+        np.testing.assert_allclose(held.variance, [0.0, 0.0, q * (1 - q) * (variance + slip**2)])
+        steps = int(3 * tau / DT)
+        for _ in range(steps):  # nothing observes the slip: it may have ended
+            _predict(bank, detector, True)
+        r = (1 - q) ** steps
+        assert bank.kf.x[2] == pytest.approx(slip * r, rel=1e-9)
+        assert bank.kf.P[2, 2] == pytest.approx(variance * r + r * (1 - r) * slip**2, rel=1e-9)
     bank, detector, events, _ = _toy_run(
         np.random.default_rng(9), (0, 0, 0.0), JumpDetectionOptions(), 300, rest_return_s=20.0
     )
-    assert not events and detector.held_noise(DT, bank) is None
+    assert not events and detector.held_return(DT, bank) is None
 
 
 def _fading_slip(seed: int, rest_return_s: float | None) -> tuple[float, list[float]]:
@@ -269,14 +276,11 @@ def _fading_slip(seed: int, rest_return_s: float | None) -> tuple[float, list[fl
     for k in range(-50, 600):
         truth = PHI @ truth + np.array([rng.normal(0.0, WALK * np.sqrt(DT)), 0.0, 0.0])
         truth[2] = 0.3 * float(np.clip((400 - k) / 200, 0.0, 1.0)) if k >= 100 else 0.0
-        bank.predict(PHI, QD)
+        _predict(bank, detector, k >= 0)
         if k >= 0:
             detector.step(k * DT, bank)
-            held = detector.held_noise(DT, bank)
-            if held is not None:
-                bank.predict(np.eye(3), np.diag(held))
         z = h @ truth + rng.normal(0.0, sigmas)
-        signature = detector.innovation_signature(bank, 0, h)
+        signature = detector.innovation_signature(bank, 0, h, layout)
         detector.observe(k * DT, bank, 0, signature, bank.kf.update(z, h, np.diag(sigmas**2)))
         if bank.kf.P[2, 2] > 1e-6:  # held (at rest it is 1e-4 or exactly known)
             normalized.append((bank.kf.x[2] - truth[2]) ** 2 / bank.kf.P[2, 2])

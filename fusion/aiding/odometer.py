@@ -54,12 +54,12 @@ jumps, which :mod:`fusion.jumps` detects, estimates and takes in: the velocity a
 slip had pulled are put back, and the odometer keeps aiding with the slipping scale (isolating
 it would leave a MEMS SINS to coast, which drifts further than the slip pulls). The wheel's
 grip returning is the jump back to s = 0 (the state's rest), where s is then set exactly, so a
-slip does not leave its estimation error in δk_D. A held slip may also end unseen, so its σ
-grows as that of a state that may have returned (``slip_mean_duration_s``;
-:meth:`fusion.jumps.JumpDetector.held_noise`). A standstill (every reading of the past
-``rest_guard_s`` a still one, :func:`still_readings`) ends a slip episode for certain: the
-measurement reports s at rest, and a slip still held is restarted at zero
-(:meth:`fusion.jumps.JumpDetector.rest`).
+slip does not leave its estimation error in δk_D. A held slip may also end unseen, so it
+decays towards zero and its σ grows as those of a state that may have returned
+(``slip_mean_duration_s``; :meth:`fusion.jumps.JumpDetector.held_return`). A standstill
+(every reading of the past ``rest_guard_s`` a still one, :func:`still_readings`) ends a slip
+episode for certain: the measurement reports s at rest, and a slip still held is restarted at
+zero (:meth:`fusion.jumps.JumpDetector.rest`).
 
 By default (``slip_sign: any``) s leaves rest either way: a driven wheel that spins reads long,
 and one that skids, slides locked or loses encoder counts reads short, and either is taken in.
@@ -182,9 +182,9 @@ class OdometerOptions(PluginOptions):
         30.0,
         gt=0,
         description="with slip_detection: how long a slip lasts on average, s (a wheel grips"
-        " again after seconds to a minute). While a slip is held its σ grows as that of a state"
-        " that may have ended unseen; null: a slip ends only when its end is detected or the"
-        " machine stops",
+        " again after seconds to a minute). A held slip decays towards zero and its σ grows as"
+        " those of one that may have ended unseen; null: a slip ends only when its end is"
+        " detected or the machine stops",
     )
     constraint_rate_hz: float = Field(10.0, gt=0, description="motion_constraint mode only")
     max_speed_mps: float | None = Field(
