@@ -231,7 +231,7 @@ class JumpDetector:
             x̂' = (1 − q) x̂,    P' = (1 − q) P + q (1 − q) x̂²
 
         that is, a decay ``(1 − q)`` in Φ and ``q (1 − q)(P + x̂²)`` of process noise. Unseen,
-        a held state so decays to rest over τ, its variance growing by at most x̂²/2."""
+        a held state so decays to rest over τ, its variance growing by at most x̂²/4."""
         held = ~self._at_rest & (self._return_rate > 0)
         if not held.any():
             return None
