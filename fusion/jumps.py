@@ -273,8 +273,9 @@ class JumpDetector:
         """``H E`` of the filter that serves ``plugin`` (rows ``h`` in its ``layout``), taken
         before its update changes E. Also notes which watched states the rows see (for
         :meth:`observe`)."""
-        for k, state in enumerate(self.states):
-            column = self._local_column(state, layout)
+        self._seen[:] = False
+        for k in np.flatnonzero(~self._at_rest & (self._return_rate > 0)):  # only held ones
+            column = self._local_column(self.states[k], layout)
             self._seen[k] = column is not None and bool(np.any(h[:, column]))
         return h @ bank.signatures_of(plugin)
 
@@ -306,7 +307,8 @@ class JumpDetector:
         ratio = np.where(possible, self._d**2 / np.where(possible, self._c, 1.0), 0.0)
         best = int(np.argmax(ratio))
         if ratio[best] <= self.threshold or self._n[best] < self.options.min_updates:
-            return self._return_to_rest(t, bank)
+            returned = self._return_to_rest(t, bank)
+            return returned if returned is not None else self._estimate_at_rest(t, bank)
         jump, variance = self._d[best] / self._c[best], 1.0 / self._c[best]
         k, onset = int(self._state[best]), float(self._onset[best])
         state = self.states[k]
@@ -362,7 +364,7 @@ class JumpDetector:
         held = ~self._at_rest[self._state] & np.isfinite(rest) & (self._c > 0)
         held &= self._n >= self.options.min_updates
         if not held.any():
-            return self._estimate_at_rest(t, bank)
+            return None
         mean = np.where(held, rest - self._held, 0.0)  # the jump back to rest, N(mean, v)
         v, c, d = self._held_variance, np.where(held, self._c, 1.0), self._d
         spread = 1.0 + c * v
@@ -371,18 +373,14 @@ class JumpDetector:
         statistic = np.where(held & (misfit <= RETURN_MISFIT), statistic, -np.inf)
         best = int(np.argmax(statistic))
         if statistic[best] <= self.return_threshold:
-            return self._estimate_at_rest(t, bank)
+            return None
         jump = (mean[best] / v[best] + d[best]) / (1.0 / v[best] + c[best])
         variance = 1.0 / (1.0 / v[best] + c[best])
         k, onset = int(self._state[best]), float(self._onset[best])
         state = self.states[k]
         before = float(bank.estimate()[0][state.index])
         bank.accommodate(best, jump, variance)
-        self._keep(self._state != k, bank)
-        assert state.rest is not None
-        bank.condition(state.index, state.rest)
-        self._at_rest[k] = True
-        self._report(state, onset, before)
+        self._set_at_rest(k, bank, onset, before)
         reason = f"back to rest {state.rest:g} at {onset:.1f} s (return test, was {before:+.4g})"
         ratio = float(statistic[best])
         return FaultEvent(t, state.name, ratio, self.return_threshold, JUMP, reason)
@@ -404,13 +402,19 @@ class JumpDetector:
             statistic = (before - self._rest[k]) ** 2 / variance
             if statistic >= 1.0:
                 continue
-            bank.condition(state.index, float(self._rest[k]))
-            self._keep(self._state != k, bank)
-            self._at_rest[k] = True
-            self._report(state, t, before)
+            self._set_at_rest(int(k), bank, t, before)
             reason = f"back to rest {self._rest[k]:g} (its estimate {before:+.4g} within 1σ)"
             return FaultEvent(t, state.name, statistic, 1.0, JUMP, reason)
         return None
+
+    def _set_at_rest(self, k: int, bank: FilterBank, onset: float, before: float) -> None:
+        """State ``k`` found back at rest (held ``before`` until ``onset``): condition on it,
+        drop its hypotheses and tell its owner."""
+        state = self.states[k]
+        bank.condition(state.index, float(self._rest[k]))
+        self._keep(self._state != k, bank)
+        self._at_rest[k] = True
+        self._report(state, onset, before)
 
     def rest(self, t: float, bank: FilterBank, name: str) -> FaultEvent | None:
         """The plugin reports state ``name`` physically back at rest (a wheel standing still
