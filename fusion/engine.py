@@ -90,7 +90,6 @@ from fusion.plugin import (
 from fusion.recording import ImuSpec, InitialSigma, Recording, check_recording
 from fusion.rows import RowBuffer
 from fusion.screening import STREAMS, ScreeningReport, screen_recording
-from fusion.sim.sensors import IMU_GRADES, spec_for_meta
 from fusion.smoother import WindowedSmoother
 from fusion.solution import Solution
 from fusion.state_history import StateHistory, StateRecorder
@@ -177,7 +176,12 @@ navigation-grade gyrocompass's 0.01°): meta.yaml may state a start known exactl
 singular covariance cannot be inverted by the federated master."""
 
 
-ASSUMED_IMU_SPEC = spec_for_meta(IMU_GRADES["mti-g-700"])
+ASSUMED_IMU_SPEC = {
+    "gyro_bias_deg_h": 720.0,
+    "gyro_arw_deg_rth": 0.6,
+    "accel_bias_mg": 3.0,
+    "accel_vrw_mg_rthz": 0.08,
+}
 """The datasheet figures taken for a figure that neither the configuration (``imu.KEY``) nor
 meta.yaml's ``imu.spec`` gives (the format makes the datasheet optional): the Xsens MTi-G-700's,
 the shearer IMU of seed 000 (Table 1: 720 deg/h, 0.6 deg/√h, 3 mg, 0.08 mg/√Hz), an

@@ -355,6 +355,15 @@ def test_a_figure_the_datasheet_lacks_is_the_configurations_or_the_assumed_one(
     assert with_imu_spec(filled, ImuTuning()) is filled
 
 
+def test_the_assumed_imu_is_the_simulators_mti_g_700() -> None:
+    """The engine states the assumed datasheet itself (it does not import the simulator); the
+    figures are those the simulator writes for the MTi-G-700 it is named after."""
+    from fusion.engine import ASSUMED_IMU_SPEC
+    from fusion.sim.sensors import IMU_GRADES, spec_for_meta
+
+    assert ASSUMED_IMU_SPEC == spec_for_meta(IMU_GRADES["mti-g-700"])
+
+
 def test_imu_figures_of_zero_are_raised_to_the_floor_with_a_warning(
     caplog: pytest.LogCaptureFixture,
 ) -> None:
