@@ -1058,10 +1058,15 @@ class Engine:
                     bank.faults.append(self._lost_lock(src, t, res, factor))
             elif lock.first_dispute():
                 bank.faults.append(self._disputed_lock(src, t, res, holders))
+                if jumps is not None and signature is not None:
+                    opened = jumps.unseen_jump(t, bank, signature, res, plugin.name)
+                    bank.faults.extend([opened] if opened is not None else [])
         if jumps is not None and signature is not None:
             events = [jumps.observe(t, bank, src, signature, res)]
             events += [jumps.rest(t, bank, name) for name in m.at_rest]
             bank.faults.extend(e for e in events if e is not None)
+            if res.accepted and np.any(rows[:, layout.slice(POSITION)]):
+                jumps.anchor(t, bank)
         logs[plugin.name].append(t, res, m.suspect)
         return res.accepted
 

@@ -76,6 +76,31 @@ disagree with it. It can then follow an end without a step for the return test t
 its estimate is within 1σ of rest it is set there, as a return is
 (docs/design/2026-12-01-held-slip-uncertainty.md).
 
+A jump no accepted update saw (:meth:`JumpDetector.unseen_jump`). A slip that begins while
+nothing that sees the position can be used (a UWB dropout, every anchor in NLOS) pulls the
+filter along the track while the slipping wheel itself holds it; when the ranges come back they
+fail the gate, and the tests above, which take accepted updates only and keep a hypothesis for
+``window_s``, never see them (a harsh world's −30 % skid during a 10-s dropout: ``full_ckf``
+1.7 m off at a σ of 8 cm for 300 s with every range rejected). Each state therefore also keeps
+an *anchor* hypothesis, reopened (at most every ``spacing_s``) at each accepted update that sees
+the position: its signature column E is the effect of a jump since a position source last
+agreed with the filter. When every update of a source is rejected while another holds the
+filter (a ``disputed`` lock, :mod:`fusion.lock`), its last rejected update — whitened innovation
+w of m rows and NIS a, whitened signature g = L⁻¹ H E — is tested against such a jump. With a
+prior Δ ~ N(0, σ²) its NIS is that of ``S + σ² H E Eᵀ Hᵀ``; the least σ² that brings it down to
+m is (Sherman–Morrison)
+
+    σ² = e / (b² − e c),    e = a − m,  b = gᵀ w,  c = gᵀ g,
+
+which exists only when b² > e c: the jump must explain the whole excess, not part of it (NLOS
+that moves the ranges' fix across the track does not). Given that update the jump is then
+
+    Δ̂ = σ² b / (1 + σ² c) = e / b,    σ²_Δ = e / b²,
+
+taken in as a detected jump is (x ← x + E Δ̂, P ← P + E σ²_Δ Eᵀ) when it lies within the state's
+bound and its direction from rest; the state is then held like any other, and the disputed
+source's next updates pass the gate and estimate it further.
+
 A jump under way explains other sensors' innovations too. :meth:`JumpDetector.explanation`
 gives the likeliest open hypothesis once its ratio passes η, in either direction; the federated
 filter asks it before isolating a local (:class:`fusion.federated.FederatedFilter`).
@@ -94,6 +119,7 @@ disagreeing with the mis-scaled odometer.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 from dataclasses import dataclass
 
@@ -208,6 +234,7 @@ class JumpDetector:
         self._d = np.empty(0)
         self._c = np.empty(0)
         self._n = np.empty(0, np.intp)
+        self._anchored = np.empty(0, bool)  # per column: an anchor (unseen_jump), not tested
         self._last_opened = -np.inf
         self._at_rest = np.array([s.rest is not None for s in states])
         self._rest = np.array([np.nan if s.rest is None else s.rest for s in states])
@@ -247,25 +274,43 @@ class JumpDetector:
 
     def step(self, t: float, bank: FilterBank) -> None:
         """Open a hypothesis per state every ``spacing_s``; drop those older than the window."""
-        old = t - self._onset > self.options.window_s
+        old = (t - self._onset > self.options.window_s) & ~self._anchored
         if old.any():
             self._keep(~old, bank)
         if t - self._last_opened < self.options.spacing_s - 1e-9:
             return
         self._last_opened = t
+        self._open(t, bank, anchored=False)
+
+    def anchor(self, t: float, bank: FilterBank) -> None:
+        """A source that sees the position agreed with the filter at ``t``: reopen every state's
+        anchor hypothesis there (:meth:`unseen_jump`), at most every ``spacing_s``."""
+        if self._anchored.any():
+            if t - float(self._onset[self._anchored].max()) < self.options.spacing_s - 1e-9:
+                return
+            self._keep(~self._anchored, bank)
+        self._open(t, bank, anchored=True)
+
+    def _open(self, t: float, bank: FilterBank, anchored: bool) -> None:
+        """Open one hypothesis per state at ``t``."""
         columns = np.zeros((self.layout.dim, len(self.states)))
         for k, s in enumerate(self.states):
             columns[s.index, k] = 1.0
         bank.add_signatures(columns)
-        x, p = bank.estimate()
-        index = [s.index for s in self.states]
-        self._state = np.append(self._state, np.arange(len(self.states)))
-        self._onset = np.append(self._onset, np.full(len(self.states), t))
-        self._held = np.append(self._held, x[index])
-        self._held_variance = np.append(self._held_variance, p[index, index])
-        self._d = np.append(self._d, np.zeros(len(self.states)))
-        self._c = np.append(self._c, np.zeros(len(self.states)))
-        self._n = np.append(self._n, np.zeros(len(self.states), np.intp))
+        count = len(self.states)
+        held, held_variance = np.zeros(count), np.zeros(count)
+        if not anchored:  # for the return test, which anchors do not enter
+            x, p = bank.estimate()
+            index = [s.index for s in self.states]
+            held, held_variance = x[index], p[index, index]
+        self._state = np.append(self._state, np.arange(count))
+        self._onset = np.append(self._onset, np.full(count, t))
+        self._held = np.append(self._held, held)
+        self._held_variance = np.append(self._held_variance, held_variance)
+        self._d = np.append(self._d, np.zeros(count))
+        self._c = np.append(self._c, np.zeros(count))
+        self._n = np.append(self._n, np.zeros(count, np.intp))
+        self._anchored = np.append(self._anchored, np.full(count, anchored))
 
     def innovation_signature(
         self, bank: FilterBank, plugin: int, h: NDArray[np.float64], layout: StateLayout
@@ -301,7 +346,7 @@ class JumpDetector:
         self._c += np.einsum("ij,ij->j", g, g)
         self._n += 1
         direction = np.where(self._at_rest, self._direction, 0)[self._state]
-        possible = (self._c > 0) & (direction * self._d >= 0)  # from rest only one way
+        possible = (self._c > 0) & (direction * self._d >= 0) & ~self._anchored  # rest: one way
         if not possible.any():
             return None
         ratio = np.where(possible, self._d**2 / np.where(possible, self._c, 1.0), 0.0)
@@ -340,7 +385,7 @@ class JumpDetector:
         passes :attr:`return_threshold`, in either direction; ``None`` otherwise. A local
         failing its fault test while a jump elsewhere explains its innovations is not the one
         at fault (:class:`fusion.federated.FederatedFilter`)."""
-        ready = (self._c > 0) & (self._n >= self.options.min_updates)
+        ready = (self._c > 0) & (self._n >= self.options.min_updates) & ~self._anchored
         if not ready.any():
             return None
         ratio = np.where(ready, self._d**2 / np.where(ready, self._c, 1.0), 0.0)
@@ -357,12 +402,55 @@ class JumpDetector:
             bool(direction * self._d[best] >= 0),
         )
 
+    def unseen_jump(
+        self,
+        t: float,
+        bank: FilterBank,
+        signature: NDArray[np.float64],
+        result: UpdateResult,
+        source: str,
+    ) -> FaultEvent | None:
+        """A source's rejected update ``result`` (its ``signature``, H E) disputes the filter
+        while others hold it: take in the jump since the source last agreed that explains it,
+        if one within the state's bound and direction does (module docstring); the event."""
+        anchors = np.flatnonzero(self._anchored & self._at_rest[self._state])
+        excess = result.nis - result.whitened.size
+        if not anchors.size or excess <= 0.0:
+            return None
+        g = whiten(result.whitening, signature[:, anchors])
+        b, c = g.T @ result.whitened, np.einsum("ij,ij->j", g, g)
+        x = bank.estimate()[0]
+        best, best_ratio = -1, 0.0
+        for n in range(anchors.size):
+            k = int(self._state[anchors[n]])
+            state, jump = self.states[k], excess / b[n] if b[n] != 0.0 else math.inf
+            explains = b[n] ** 2 > excess * c[n] and self._direction[k] * b[n] >= 0
+            within = state.bound is None or abs(x[state.index] + jump) <= state.bound
+            if explains and within and b[n] ** 2 / c[n] > best_ratio:
+                best, best_ratio = n, float(b[n] ** 2 / c[n])
+        if best < 0:
+            return None
+        column = int(anchors[best])
+        k = int(self._state[column])
+        state, onset = self.states[k], float(self._onset[column])
+        jump, variance = float(excess / b[best]), float(excess / b[best] ** 2)
+        before = float(x[state.index])
+        bank.accommodate(column, jump, variance)
+        self._keep(self._state != k, bank)  # its hypotheses and anchor start afresh
+        self._at_rest[k] = False
+        self._report(state, onset, before)
+        reason = (
+            f"jumped unseen by {jump:+.4g} ± {np.sqrt(variance):.2g} since {onset:.1f} s,"
+            f" when {source} last agreed with the filter (what explains its rejected update)"
+        )
+        return FaultEvent(t, state.name, best_ratio, excess, JUMP, reason)
+
     def _return_to_rest(self, t: float, bank: FilterBank) -> FaultEvent | None:
         """The return test: take in the likeliest return to rest of a held state, if its
         statistic passes :attr:`return_threshold` (see the module docstring)."""
         rest = self._rest[self._state]
         held = ~self._at_rest[self._state] & np.isfinite(rest) & (self._c > 0)
-        held &= self._n >= self.options.min_updates
+        held &= (self._n >= self.options.min_updates) & ~self._anchored
         if not held.any():
             return None
         mean = np.where(held, rest - self._held, 0.0)  # the jump back to rest, N(mean, v)
@@ -442,3 +530,4 @@ class JumpDetector:
         self._state, self._onset = self._state[keep], self._onset[keep]
         self._held, self._held_variance = self._held[keep], self._held_variance[keep]
         self._d, self._c, self._n = self._d[keep], self._c[keep], self._n[keep]
+        self._anchored = self._anchored[keep]

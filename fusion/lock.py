@@ -16,7 +16,10 @@ rest, and writes a ``reacquire`` line to ``faults.csv`` (a fix within the filter
 filter uncertain rather than lost, is taken in as a position update instead:
 ``Engine._take_in_fix``). A plugin whose every update is rejected while another still holds the
 filter is not re-acquired from, but gets one ``disputed`` line until one of its updates is accepted
-again: either it or the filter is wrong, and the user is told. A plugin that cannot say where the
+again: either it or the filter is wrong, and the user is told. The jump detector is then asked
+whether a jump of a holder's state since the plugin last agreed (a wheel that began to slip
+while no range came) explains the rejected update, and takes it in if so
+(:meth:`fusion.jumps.JumpDetector.unseen_jump`). A plugin that cannot say where the
 machine is (an odometer, a motion constraint) gets a ``lost lock`` line, and the variances of the
 SINS states are multiplied by the fading factor λ of the last rejected innovation
 (:func:`fading_factor`): the smallest λ with ``νᵀ (λ H P Hᵀ + R)⁻¹ ν = m``, the factor that makes

@@ -44,14 +44,16 @@ def _toy_layout(
     )
 
 
-def _predict(bank: CentralizedFilter, detector: JumpDetector, watched: bool) -> None:
+def _predict(
+    bank: CentralizedFilter, detector: JumpDetector, watched: bool, qd: NDArray[np.float64] = QD
+) -> None:
     """The toy's time update, with the held slip's return (:meth:`JumpDetector.held_return`)
     once the detector watches."""
     held = detector.held_return(DT, bank) if watched else None
     if held is None:
-        bank.predict(PHI, QD)
+        bank.predict(PHI, qd)
     else:
-        bank.predict(held.decay[:, None] * PHI, QD + np.diag(held.variance))
+        bank.predict(held.decay[:, None] * PHI, qd + np.diag(held.variance))
 
 
 def _toy_run(
@@ -304,6 +306,79 @@ def test_a_slip_fading_out_keeps_its_sigma_and_ends_at_rest() -> None:
             assert sum(abs(end) < 1e-9 for end in ends) >= 18, ends
     print(f"held slip RMS(ε/σ): {pooled[20.0]:.2f} with τ = 20 s, {pooled[None]:.2f} without")
     assert 0.6 < pooled[20.0] < 1.5 and pooled[None] > 3.0
+
+
+FIX_H, FIX_NOISE, FIX_GATE = np.array([[0.0, 1.0, 0.0]]), 0.05, 0.999
+HARSH_QD = np.diag([0.02**2 * DT, 0.0, 0.0])  # a SINS too poor to see a slip on its own
+
+
+def _slip_in_a_dropout(
+    seed: int, ratio: float, dropout: tuple[int, int], offset: float = 0.0
+) -> tuple[CentralizedFilter, list[str], np.ndarray, list[bool]]:
+    """The toy wheel, its speed known to the filter only as a fast random walk (HARSH_QD: the
+    slip's step is not seen in the wheel's readings alone), with a position fix every step but
+    during ``dropout`` (steps), a slip of
+    ``ratio`` from the dropout's first step on, and the fixes after it displaced by ``offset``
+    (a source at fault). After 3 s of rejected fixes the detector is told of the dispute, as
+    the engine's lock monitor does. Returns the bank, the events, the truth and whether each fix
+    after the dropout was accepted."""
+    rng = np.random.default_rng(seed)
+    layout = _toy_layout(bound=1.0, rest_return_s=30.0)
+    bank = CentralizedFilter(layout)
+    detector = JumpDetector(layout, jump_states(layout), JumpDetectionOptions())
+    truth, events, accepted, rejected_for = np.zeros(3), [], [], 0
+    for k in range(-50, 400):
+        truth = PHI @ truth + np.array([rng.normal(0.0, WALK * np.sqrt(DT)), 0.0, 0.0])
+        truth[0] = SPEED + 0.1 * (truth[0] - SPEED)  # the machine keeps its speed
+        truth[2] = ratio if k >= dropout[0] else 0.0
+        _predict(bank, detector, k >= 0, HARSH_QD)
+        t = k * DT
+        if k >= 0:
+            detector.step(t, bank)
+        z = H @ truth + rng.normal(0.0, SPEED_NOISE, 1)
+        signature = detector.innovation_signature(bank, 0, H, layout)
+        detector.observe(t, bank, 0, signature, bank.kf.update(z, H, R))
+        if dropout[0] <= k < dropout[1]:
+            continue
+        fix = FIX_H @ truth + (offset if k >= dropout[1] else 0.0) + rng.normal(0, FIX_NOISE, 1)
+        signature = detector.innovation_signature(bank, 1, FIX_H, layout)
+        result = bank.kf.update(fix, FIX_H, np.array([[FIX_NOISE**2]]), FIX_GATE)
+        if k >= dropout[1]:
+            accepted.append(result.accepted)
+        if result.accepted:
+            rejected_for = 0
+            detector.observe(t, bank, 1, signature, result)
+            if k >= 0:
+                detector.anchor(t, bank)
+            continue
+        rejected_for += 1
+        if rejected_for == 30:  # 3 s: a dispute, the wheel holding the filter
+            event = detector.unseen_jump(t, bank, signature, result, "fix")
+            events += [event.reason] if event is not None else []
+    return bank, events, truth, accepted
+
+
+def test_a_slip_begun_in_a_dropout_is_taken_in_when_the_fixes_dispute_the_filter() -> None:
+    """A slip that starts while no fix comes drags the filter along the track; the fixes after
+    it are all rejected. Told of the dispute, the detector takes in the slip since the last
+    fix (the anchor), its estimate within 3σ of the truth, and the fixes are accepted again;
+    without the anchors the filter would stay off for good."""
+    for seed in range(5):
+        bank, events, truth, accepted = _slip_in_a_dropout(seed, -0.3, (100, 200))
+        assert len(events) == 1 and "jumped unseen by" in events[0], events
+        jump = float(events[0].split("by ")[1].split(" ±")[0])
+        sigma = float(events[0].split("± ")[1].split(" ")[0])
+        assert abs(jump + 0.3) < 3.0 * sigma + 0.05, events[0]
+        assert np.mean(accepted[-100:]) > 0.9
+        position_error = bank.kf.x[1] - truth[1]
+        assert abs(position_error) < 3.0 * np.sqrt(bank.kf.P[1, 1]) + 0.05
+
+
+def test_a_dispute_no_jump_within_its_bound_explains_is_left_alone() -> None:
+    """Fixes that come back 10 m off after 10 s of travel at 0.13 m/s would need a slip of
+    about 8, beyond the state's bound of 1: nothing is taken in, and the fixes stay rejected."""
+    _, events, _, accepted = _slip_in_a_dropout(0, 0.0, (100, 200), offset=10.0)
+    assert events == [] and not any(accepted)
 
 
 def test_no_jump_without_a_slip() -> None:
