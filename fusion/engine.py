@@ -1065,8 +1065,8 @@ class Engine:
             events = [jumps.observe(t, bank, src, signature, res)]
             events += [jumps.rest(t, bank, name) for name in m.at_rest]
             bank.faults.extend(e for e in events if e is not None)
-            if res.accepted and np.any(rows[:, layout.slice(POSITION)]):
-                jumps.anchor(t, bank)
+            if res.accepted and bank.in_fusion(src) and np.any(rows[:, layout.slice(POSITION)]):
+                jumps.anchor(t, bank)  # a position source agrees with the fused filter
         logs[plugin.name].append(t, res, m.suspect)
         return res.accepted
 
