@@ -1190,7 +1190,9 @@ class Engine:
         update of ``src`` is accepted again (:meth:`fusion.lock.LockMonitor.first_dispute`),
         that either the sensor or the filter is wrong. Before, such
         a plugin was rejected in silence however long it lasted
-        (docs/design/2026-11-30-anchor-exclusion.md)."""
+        (docs/design/2026-11-30-anchor-exclusion.md). The caller then asks the jump detector
+        whether a jump since the plugin last agreed explains it
+        (:meth:`fusion.jumps.JumpDetector.unseen_jump`)."""
         name = self.plugins[src].name
         held_by = ", ".join(self.plugins[k].name for k in holders)
         reason = (

@@ -80,8 +80,7 @@ A jump no accepted update saw (:meth:`JumpDetector.unseen_jump`). A slip that be
 nothing that sees the position can be used (a UWB dropout, every anchor in NLOS) pulls the
 filter along the track while the slipping wheel itself holds it; when the ranges come back they
 fail the gate, and the tests above, which take accepted updates only and keep a hypothesis for
-``window_s``, never see them (a harsh world's −30 % skid during a 10-s dropout: ``full_ckf``
-1.7 m off at a σ of 8 cm for 300 s with every range rejected). Each state therefore also keeps
+``window_s``, never see them (docs/design/2026-12-01-slip-in-a-dropout.md). Each state also keeps
 an *anchor* hypothesis, reopened (at most every ``spacing_s``) at each accepted update that sees
 the position: its signature column E is the effect of a jump since a position source last
 agreed with the filter. When every update of a source is rejected while another holds the
