@@ -151,6 +151,11 @@ class JumpState:
     rest_return_s: float | None = None
 
 
+def _within_bound(state: JumpState, value: float) -> bool:
+    """Whether ``value`` is within the state's physical bound (always, without one)."""
+    return state.bound is None or abs(value) <= state.bound
+
+
 def jump_states(layout: StateLayout) -> list[JumpState]:
     """The states of the layout's blocks declared ``may_jump``."""
     states = []
@@ -235,6 +240,7 @@ class JumpDetector:
         self._n = np.empty(0, np.intp)
         self._anchored = np.empty(0, bool)  # per column: an anchor (unseen_jump), not tested
         self._last_opened = -np.inf
+        self._last_anchored = -np.inf
         self._at_rest = np.array([s.rest is not None for s in states])
         self._rest = np.array([np.nan if s.rest is None else s.rest for s in states])
         self._direction = np.array([s.leaves_rest for s in states])
@@ -284,10 +290,11 @@ class JumpDetector:
     def anchor(self, t: float, bank: FilterBank) -> None:
         """A source that sees the position agreed with the filter at ``t``: reopen every state's
         anchor hypothesis there (:meth:`unseen_jump`), at most every ``spacing_s``."""
-        if self._anchored.any():
-            if t - float(self._onset[self._anchored].max()) < self.options.spacing_s - 1e-9:
+        if self._anchored.any():  # opened at _last_anchored
+            if t - self._last_anchored < self.options.spacing_s - 1e-9:
                 return
             self._keep(~self._anchored, bank)
+        self._last_anchored = t
         self._open(t, bank, anchored=True)
 
     def _open(self, t: float, bank: FilterBank, anchored: bool) -> None:
@@ -357,7 +364,7 @@ class JumpDetector:
         k, onset = int(self._state[best]), float(self._onset[best])
         state = self.states[k]
         before = float(bank.estimate()[0][state.index])
-        if state.bound is not None and abs(before + jump) > state.bound:
+        if not _within_bound(state, before + jump):
             self._keep(self._state != k, bank)  # its hypotheses start afresh
             reason = (
                 f"a jump by {jump:+.4g} at {onset:.1f} s not taken in: {before + jump:+.4g} is"
@@ -424,7 +431,7 @@ class JumpDetector:
             k = int(self._state[anchors[n]])
             state, jump = self.states[k], excess / b[n] if b[n] != 0.0 else math.inf
             explains = b[n] ** 2 > excess * c[n] and self._direction[k] * b[n] >= 0
-            within = state.bound is None or abs(x[state.index] + jump) <= state.bound
+            within = _within_bound(state, x[state.index] + jump)
             if explains and within and b[n] ** 2 / c[n] > best_ratio:
                 best, best_ratio = n, float(b[n] ** 2 / c[n])
         if best < 0:
