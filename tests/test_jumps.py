@@ -12,6 +12,7 @@ from numpy.typing import NDArray
 from fusion.config import JumpDetectionOptions, load_config, parse_config
 from fusion.engine import Engine, RunResult
 from fusion.error_model import StateBlock, StateLayout
+from fusion.fault_detection import FaultEvent
 from fusion.filter_bank import CentralizedFilter
 from fusion.jumps import JUMP, JumpDetector, jump_states
 from fusion.recording import Recording
@@ -56,6 +57,25 @@ def _predict(
         bank.predict(held.decay[:, None] * PHI, qd + np.diag(held.variance))
 
 
+def _wheel_step(
+    bank: CentralizedFilter,
+    detector: JumpDetector,
+    layout: StateLayout,
+    k: int,
+    z: NDArray[np.float64],
+    h: NDArray[np.float64] = H,
+    r: NDArray[np.float64] = R,
+    qd: NDArray[np.float64] = QD,
+) -> FaultEvent | None:
+    """One step of the toy filter at step ``k`` (the detector watching from step 0): the time
+    update, then the wheel's reading ``z`` (rows ``h``), the detector observing it."""
+    _predict(bank, detector, k >= 0, qd)
+    if k >= 0:
+        detector.step(k * DT, bank)
+    signature = detector.innovation_signature(bank, 0, h, layout)
+    return detector.observe(k * DT, bank, 0, signature, bank.kf.update(z, h, r))
+
+
 def _toy_run(
     rng: np.random.Generator,
     slip: tuple[int, int, float],
@@ -77,12 +97,8 @@ def _toy_run(
     for k in range(-settle, steps):
         truth = PHI @ truth + np.array([rng.normal(0.0, WALK * np.sqrt(DT)), 0.0, 0.0])
         truth[2] = ratio if start <= k < end else 0.0
-        _predict(bank, detector, k >= 0)
-        if k >= 0:
-            detector.step(k * DT, bank)
         z = H @ truth + rng.normal(0.0, SPEED_NOISE, 1)
-        signature = detector.innovation_signature(bank, 0, H, layout)
-        event = detector.observe(k * DT, bank, 0, signature, bank.kf.update(z, H, R))
+        event = _wheel_step(bank, detector, layout, k, z)
         if event is not None:
             events.append(event.reason)
     return bank, detector, events, truth
@@ -278,12 +294,8 @@ def _fading_slip(seed: int, rest_return_s: float | None) -> tuple[float, list[fl
     for k in range(-50, 600):
         truth = PHI @ truth + np.array([rng.normal(0.0, WALK * np.sqrt(DT)), 0.0, 0.0])
         truth[2] = 0.3 * float(np.clip((400 - k) / 200, 0.0, 1.0)) if k >= 100 else 0.0
-        _predict(bank, detector, k >= 0)
-        if k >= 0:
-            detector.step(k * DT, bank)
         z = h @ truth + rng.normal(0.0, sigmas)
-        signature = detector.innovation_signature(bank, 0, h, layout)
-        detector.observe(k * DT, bank, 0, signature, bank.kf.update(z, h, np.diag(sigmas**2)))
+        _wheel_step(bank, detector, layout, k, z, h, np.diag(sigmas**2))
         if bank.kf.P[2, 2] > 1e-6:  # held (at rest it is 1e-4 or exactly known)
             normalized.append((bank.kf.x[2] - truth[2]) ** 2 / bank.kf.P[2, 2])
     return float(bank.kf.x[2]), normalized
@@ -331,13 +343,9 @@ def _slip_in_a_dropout(
         truth = PHI @ truth + np.array([rng.normal(0.0, WALK * np.sqrt(DT)), 0.0, 0.0])
         truth[0] = SPEED + 0.1 * (truth[0] - SPEED)  # the machine keeps its speed
         truth[2] = ratio if k >= dropout[0] else 0.0
-        _predict(bank, detector, k >= 0, HARSH_QD)
-        t = k * DT
-        if k >= 0:
-            detector.step(t, bank)
         z = H @ truth + rng.normal(0.0, SPEED_NOISE, 1)
-        signature = detector.innovation_signature(bank, 0, H, layout)
-        detector.observe(t, bank, 0, signature, bank.kf.update(z, H, R))
+        _wheel_step(bank, detector, layout, k, z, qd=HARSH_QD)
+        t = k * DT
         if dropout[0] <= k < dropout[1]:
             continue
         fix = FIX_H @ truth + (offset if k >= dropout[1] else 0.0) + rng.normal(0, FIX_NOISE, 1)
