@@ -307,12 +307,9 @@ class Odometer(Plugin):
             if options.zero_angular_rate
             else None
         )
-        self.standing = self._standstill() if self.use_speed else np.empty(0, bool)
-        self.at_rest = (
-            self.standing
-            if self.zero_rate is not None or options.slip_detection
-            else np.empty(0, bool)
-        )
+        self.at_rest = self._standstill() if self.use_speed else np.empty(0, bool)
+        """Readings at which the encoder shows the machine standing: the ZARU, the slip's rest
+        and the columns' zero speed (:meth:`_reference_speed`) all read it."""
 
     def start_run(self) -> None:
         """Forget a run's learned noise, reference travel and rest scatter."""
@@ -554,7 +551,7 @@ class Odometer(Plugin):
         pushed it the same way (random full-length world 0, 72 counts/m: −0.7 → −2.9 % against
         a true +0.4 % across one stop, along-face error 0.5 → 2.4 m;
         ``test_a_coarse_encoder_keeps_its_scale``)."""
-        if self.standing[max(index - 1, 0)]:
+        if self.at_rest[max(index - 1, 0)]:
             return 0.0
         slip = float(scale[1]) if scale.size > 1 else 0.0
         return self.reference.at(index, float(scale[0]), slip, along)
