@@ -110,9 +110,10 @@ class Measurement:
 
     def stacked_with(self, other: Measurement) -> Measurement:
         """This measurement and ``other`` as one (rows appended, independent noise apart from
-        the stored errors one of them may carry; both must consider the same states)."""
-        if self.consider != other.consider:
-            raise ValueError("cannot stack two measurements that consider different states")
+        the stored errors one of them may carry). It leaves alone only the states both leave
+        alone: a part that informs a state (a zero angular rate the vertical gyro bias) makes
+        the whole update inform it."""
+        consider = tuple(i for i in self.consider if i in other.consider)
         return Measurement(
             np.concatenate([self.z, other.z]),
             np.vstack([self.H, other.H]),
@@ -121,7 +122,7 @@ class Measurement:
             self.withheld or other.withheld,
             self.at_rest + tuple(n for n in other.at_rest if n not in self.at_rest),
             _stacked_noise(self, other),
-            self.consider,
+            consider,
             self.velocity_at if self.velocity_at is not None else other.velocity_at,
             self.fault if self.fault is not None else other.fault,
         )
