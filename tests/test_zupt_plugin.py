@@ -212,10 +212,10 @@ def test_a_constraint_that_leaves_the_heading_untouched() -> None:
         assert m is not None
         kf = KalmanFilter(np.zeros(layout.dim), p)
         kf.update(m.z, m.H, m.R, consider=m.consider)
-        updates[untouched] = (kf.x.copy(), np.diag(kf.P).copy(), np.diag(p), m.consider)
+        updates[untouched] = (kf.x.copy(), np.diag(kf.P).copy(), np.diag(p))
         if untouched:
             assert m.consider == (heading, bias_z)
-    x, variance, prior, _ = updates[True]
+    x, variance, prior = updates[True]
     assert x[heading] == 0.0 and x[bias_z] == 0.0
     assert variance[heading] == prior[heading] and variance[bias_z] == prior[bias_z]
     assert np.all(variance[v] < prior[v])
