@@ -1051,11 +1051,11 @@ class Engine:
             if not holders:
                 lock.reset()
                 if not self._reacquire(src, t, sins, bank):
-                    factor = 1.0
-                    if lock.first_inflation():
+                    factor, doubt = 1.0, plugin.lost_lock_doubt(t, ctx)
+                    if doubt is None and lock.first_inflation():
                         statistic_covariance = kf.P if shared is None else shared
                         factor = self._inflate(rows, statistic_covariance, res, bank)
-                    bank.faults.append(self._lost_lock(src, t, res, factor))
+                    bank.faults.append(self._lost_lock(src, t, res, factor, doubt))
             elif lock.first_dispute():
                 bank.faults.append(self._disputed_lock(src, t, res, holders))
                 if jumps is not None and signature is not None:
@@ -1169,16 +1169,19 @@ class Engine:
         bank.inflate_common(factor)
         return factor
 
-    def _lost_lock(self, src: int, t: float, res: UpdateResult, factor: float) -> FaultEvent:
+    def _lost_lock(
+        self, src: int, t: float, res: UpdateResult, factor: float, doubt: str | None
+    ) -> FaultEvent:
         """The ``faults.csv`` line of plugin ``src``'s lost lock, with the inflation (1: none,
-        the last one having brought no update back)."""
+        for the plugin's ``doubt`` or the last one having brought no update back)."""
         name = self.plugins[src].name
         reason = f"every update of {name} rejected for {self.config.filter.lock_window_s:g} s; "
-        reason += (
-            f"variances of the SINS states inflated x{factor:.3g}"
-            if factor > 1.0
-            else "not inflated again: the last inflation did not bring its updates back"
-        )
+        if doubt is not None:
+            reason += f"not inflated: {doubt}"
+        elif factor > 1.0:
+            reason += f"variances of the SINS states inflated x{factor:.3g}"
+        else:
+            reason += "not inflated again: the last inflation did not bring its updates back"
         return FaultEvent(t, name, res.nis, math.nan, LOST_LOCK, reason)
 
     def _disputed_lock(

@@ -31,7 +31,10 @@ increase is added as uncorrelated noise (:meth:`fusion.kalman.KalmanFilter.add_v
 first zero velocity after the inflation swing the attitude. A SINS whose gyro bias is several times
 its prior (a harsh world's 2700 °/h against 720 °/h) otherwise tilts faster than its covariance
 allows, has every odometer update rejected from its first seconds, and coasts for the rest of the
-recording. Only the SINS states are inflated: the rejected plugin's own states (mounting, scale)
+recording. Not when the plugin doubts that the lost lock is the SINS's
+(:meth:`fusion.plugin.Plugin.lost_lock_doubt`: a ZUPT whose standstill only the IMU's detector
+claims, which a car at a steady speed fools): the line is written, nothing inflated. Only the
+SINS states are inflated: the rejected plugin's own states (mounting, scale)
 would otherwise take up the next update instead of the SINS. Once per loss: a lost lock again before
 a window with most updates accepted is only reported (:meth:`LockMonitor.first_inflation`). Either
 way the monitor starts over.

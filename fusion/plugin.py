@@ -307,6 +307,14 @@ class Plugin(ABC):
         in as a position update, one it does not replaces the position (``Engine._reacquire``)."""
         return None
 
+    def lost_lock_doubt(self, t: float, ctx: MeasurementContext) -> str | None:
+        """Why a lost lock of this plugin at ``t`` (every update rejected, no other plugin
+        holding the filter, nothing re-acquired) need not show the SINS wrong, or None. The
+        engine inflates the SINS covariance only for a lost lock without a doubt
+        (:mod:`fusion.lock`): the inflation takes the sensor's reading for right and throws the
+        filter's information away to admit it. Default: no doubt."""
+        return None
+
     def beyond_linearization(self, index: int, ctx: MeasurementContext) -> bool:
         """Whether the filter is too uncertain for this plugin's linearized measurement of
         epoch ``index`` (its nonlinearity would make the update overconfident): the engine then

@@ -772,6 +772,29 @@ class Zupt(Plugin):
         largest = float(np.max(np.diagonal(ctx.covariance[attitude, attitude])))
         return largest > MAX_INFLATED_ATTITUDE_SIGMA**2
 
+    def lost_lock_doubt(self, t: float, ctx: MeasurementContext) -> str | None:
+        """A lost lock at a ZUPT epoch whose zero velocity the filter's covariance does not
+        explain (:func:`_agrees`), when nothing but the IMU says the machine stands (no
+        ``odometer_rest_mps``) and no top speed is known (no ``max_speed_mps``, whose
+        re-acquisition deals with it): the filter's velocity or the detector is wrong, and
+        the IMU cannot tell which. Steady driving looks like a standstill to a norm detector;
+        on the car drive of the real suite the inflation made the filter's 12 m/s velocity σ
+        admit the next false zero velocity, and 60-s outages drifted 1.7 km instead of 177 m.
+        Otherwise no doubt (the odometer confirms the rest, or the lost lock is the stacked
+        ZARU's)."""
+        options = self.options
+        if options.odometer_rest_mps is not None or options.max_speed_mps is not None:
+            return None
+        index = int(np.searchsorted(self._epochs, t - 1e-9))
+        if index >= self._epochs.size or not self.zupt_epoch[index]:
+            return None
+        if _agrees(self._zero_velocity(ctx), ctx):
+            return None
+        return (
+            "the standstill rests on the IMU's detector alone, and the filter's velocity"
+            " contradicts it (a moving machine can look still to the detector)"
+        )
+
     def reacquire(self, t: float, ctx: MeasurementContext) -> Reacquisition | None:
         """At a standstill (a ZUPT epoch at ``t``) where the filter is beyond its first-order
         model (:meth:`beyond_linearization`) or its covariance does not explain the zero
