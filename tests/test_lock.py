@@ -253,8 +253,7 @@ def test_a_zupt_on_the_imu_alone_does_not_inflate_a_moving_filter_to_admit_it(
     zero velocity, and the lock is lost. With nothing but the IMU saying the machine stands and
     no top speed known, the IMU cannot tell a lost SINS from a false standstill: the lost lock
     is reported and the SINS is not inflated. Inflated, its velocity σ admitted the next zero
-    velocity and the car stopped in the filter (the real drive's 60-s outages: 1.7 km instead
-    of 177 m)."""
+    velocity and the car stopped in the filter, 31 m along its 200-m drive."""
     recording = read_recording(_steady_drive(tmp_path / "rec", speed=10.0, duration=20.0))
     config = yaml.safe_load((CONFIGS / "sins_zupt.yaml").read_text())
     zupt = config["plugins"][0]

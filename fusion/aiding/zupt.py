@@ -777,11 +777,10 @@ class Zupt(Plugin):
         explain (:func:`_agrees`), when nothing but the IMU says the machine stands (no
         ``odometer_rest_mps``) and no top speed is known (no ``max_speed_mps``, whose
         re-acquisition deals with it): the filter's velocity or the detector is wrong, and
-        the IMU cannot tell which. Steady driving looks like a standstill to a norm detector;
-        on the car drive of the real suite the inflation made the filter's 12 m/s velocity σ
-        admit the next false zero velocity, and 60-s outages drifted 1.7 km instead of 177 m.
-        Otherwise no doubt (the odometer confirms the rest, or the lost lock is the stacked
-        ZARU's)."""
+        the IMU cannot tell which. Steady driving looks like a standstill to a norm detector,
+        and an inflation to the car's speed would admit the next false zero velocity
+        (docs/design/2026-12-01-a-zupt-on-the-imu-alone.md). Otherwise no doubt (the odometer
+        confirms the rest, or the lost lock is the stacked ZARU's)."""
         options = self.options
         if options.odometer_rest_mps is not None or options.max_speed_mps is not None:
             return None
