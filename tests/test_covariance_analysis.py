@@ -147,7 +147,6 @@ def test_the_motion_constraint_alone_reports_a_yaw_sigma_it_keeps(tmp_path: Path
     def rms(chunks: list[np.ndarray]) -> float:
         return float(np.sqrt(np.mean(np.concatenate(chunks) ** 2)))
 
-    print({name: round(rms(chunks), 2) for name, chunks in reported.items()})
     assert rms(reported["moved"]) > 1.5
     assert 0.6 <= rms(reported["filter"]) <= 1.5
     assert 0.6 <= rms(reported["invariant_analysis"]) <= 1.5

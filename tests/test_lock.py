@@ -10,7 +10,7 @@ import pytest
 import yaml
 
 from fusion.attitude import dcm_from_euler
-from fusion.config import load_config
+from fusion.config import load_config, load_config_data, parse_config
 from fusion.engine import Engine, _holds
 from fusion.error_model import GYRO_BIAS, POSITION, VELOCITY
 from fusion.kalman import KalmanFilter
@@ -25,9 +25,9 @@ from fusion.lock import (
     inflation_variances,
 )
 from fusion.metrics import interpolate_truth
-from fusion.recording import read_recording
+from fusion.recording import ImuData, Recording, read_recording
 from fusion.sim.simulate import simulate
-from tests.plugin_support import layout_with
+from tests.plugin_support import layout_with, recording_meta
 
 CONFIGS = Path(__file__).resolve().parents[1] / "configs"
 
@@ -205,34 +205,28 @@ def test_a_sensor_rejected_while_another_holds_the_filter_is_disputed_once(
     assert np.max(error) < 0.1
 
 
-def _steady_drive(path: Path, speed: float, duration: float) -> Path:
-    """A noise-free recording of a level vehicle driving due north at ``speed`` on the
-    equator: its IMU reads gravity and the earth's and the transport rate only, a standstill to
-    any norm detector."""
+def _steady_drive(speed: float, duration: float) -> Recording:
+    """A noise-free IMU on a level vehicle driving due north at ``speed`` on the equator: it
+    reads gravity and the earth's and the transport rate only, a standstill to any norm
+    detector."""
     from fusion.earth import OMEGA_IE, normal_gravity, radii
 
-    path.mkdir(parents=True)
     meridian, _ = radii(0.0)
     rate = 100.0
     t = np.arange(1, int(duration * rate) + 1) / rate
     gyro = np.tile([-speed / meridian, OMEGA_IE, 0.0], (t.size, 1))  # ω_ie + ω_en, body = ENU
     force = np.tile([0.0, 0.0, normal_gravity(0.0, 0.0) - speed**2 / meridian], (t.size, 1))
-    rows = np.column_stack([t, gyro, force])
-    np.savetxt(path / "imu.csv", rows, delimiter=",", header="t,wx,wy,wz,fx,fy,fz", comments="")
-    meta = {
-        "format": "shearer-recording/1",
-        "origin": {"lat_deg": 0.0, "lon_deg": 0.0, "height_m": 0.0},
-        "initial": {
-            "position_enu_m": [0.0, 0.0, 0.0],
+    meta = recording_meta(
+        origin={"lat_deg": 0.0, "lon_deg": 0.0, "height_m": 0.0},
+        initial={
             "velocity_enu_mps": [0.0, speed, 0.0],
-            "attitude_deg": {"roll": 0.0, "pitch": 0.0, "yaw": 0.0},
             "sigma": {
-                "position_m": [0.1, 0.1, 0.1],
-                "velocity_mps": [0.05, 0.05, 0.05],
+                "position_m": [0.1] * 3,
+                "velocity_mps": [0.05] * 3,
                 "attitude_deg": [0.1, 0.1, 0.5],
             },
         },
-        "imu": {
+        imu={
             "rate_hz": rate,
             "spec": {
                 "gyro_bias_deg_h": 10.0,
@@ -241,27 +235,21 @@ def _steady_drive(path: Path, speed: float, duration: float) -> Path:
                 "accel_vrw_mg_rthz": 0.05,
             },
         },
-    }
-    (path / "meta.yaml").write_text(yaml.safe_dump(meta))
-    return path
+    )
+    return Recording(path=None, meta=meta, imu=ImuData(t=t, gyro=gyro, accel=force))
 
 
-def test_a_zupt_on_the_imu_alone_does_not_inflate_a_moving_filter_to_admit_it(
-    tmp_path: Path,
-) -> None:
+def test_a_zupt_on_the_imu_alone_does_not_inflate_a_moving_filter_to_admit_it() -> None:
     """A car at a steady 10 m/s looks still to a norm detector; the χ² gate rejects every
     zero velocity, and the lock is lost. With nothing but the IMU saying the machine stands and
     no top speed known, the IMU cannot tell a lost SINS from a false standstill: the lost lock
     is reported and the SINS is not inflated. Inflated, its velocity σ admitted the next zero
     velocity and the car stopped in the filter, 31 m along its 200-m drive."""
-    recording = read_recording(_steady_drive(tmp_path / "rec", speed=10.0, duration=20.0))
-    config = yaml.safe_load((CONFIGS / "sins_zupt.yaml").read_text())
+    config = load_config_data(CONFIGS / "sins_zupt.yaml")
     zupt = config["plugins"][0]
     del zupt["max_speed_mps"]
     zupt["sigma_zero_velocity_mps"] = 0.01
-    (tmp_path / "imu").symlink_to(CONFIGS / "imu")
-    (tmp_path / "plain_zupt.yaml").write_text(yaml.safe_dump(config))
-    result = Engine(load_config(tmp_path / "plain_zupt.yaml"), recording).run()
+    result = Engine(parse_config(config), _steady_drive(speed=10.0, duration=20.0)).run()
     lost = [e for e in result.faults if e.action == LOST_LOCK]
     assert lost and all("not inflated: the standstill rests on" in e.reason for e in lost)
     end = result.solution.position[-1]

@@ -54,10 +54,9 @@ Schmidt consider states (:attr:`fusion.plugin.Measurement.consider`), whose unce
 and the other gains and whose own gain is zero. A turn of the whole trajectory is invisible to
 the constraint; what its rows said about the heading came from the covariance of the heading
 and the bias with the velocity, and the rows' noise, the machine's vibration velocity, is
-correlated with the vibration that ``fⁿ × φ`` pairs with the heading in F. On random world 9
-(1300 s of cutting without a stop) the rows walked the vertical gyro bias −219 → −494 °/h
-(true −232) and the yaw 60° off at a σ of 15°; left alone, over the first 1800 s the yaw stays
-within 4° RMS at RMS(ε/σ) 0.7 (docs/design/2026-12-01-vibration-in-f-for-the-constraint.md).
+correlated with the vibration that ``fⁿ × φ`` pairs with the heading in F: the rows walked the
+vertical gyro bias, and the yaw with it, over a long pass without a stop
+(docs/design/2026-12-01-vibration-in-f-for-the-constraint.md).
 
 Wheel slip (option ``slip_detection``): a wheel that slips over-reads by a ratio s from one
 sample to the next, ``s̃ = (1 + δk_D)(1 + s) v``. The plugin then owns a slip state s (its

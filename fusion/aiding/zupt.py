@@ -772,6 +772,13 @@ class Zupt(Plugin):
         largest = float(np.max(np.diagonal(ctx.covariance[attitude, attitude])))
         return largest > MAX_INFLATED_ATTITUDE_SIGMA**2
 
+    def _zupt_epoch_at(self, t: float) -> int | None:
+        """The index of the epoch at ``t`` if it is a ZUPT epoch, else None."""
+        index = int(np.searchsorted(self._epochs, t - 1e-9))
+        if index >= self._epochs.size or not self.zupt_epoch[index]:
+            return None
+        return index
+
     def lost_lock_doubt(self, t: float, ctx: MeasurementContext) -> str | None:
         """A lost lock at a ZUPT epoch whose zero velocity the filter's covariance does not
         explain (:func:`_agrees`), when nothing but the IMU says the machine stands (no
@@ -784,10 +791,7 @@ class Zupt(Plugin):
         options = self.options
         if options.odometer_rest_mps is not None or options.max_speed_mps is not None:
             return None
-        index = int(np.searchsorted(self._epochs, t - 1e-9))
-        if index >= self._epochs.size or not self.zupt_epoch[index]:
-            return None
-        if _agrees(self._zero_velocity(ctx), ctx):
+        if self._zupt_epoch_at(t) is None or _agrees(self._zero_velocity(ctx), ctx):
             return None
         return (
             "the standstill rests on the IMU's detector alone, and the filter's velocity"
@@ -819,8 +823,8 @@ class Zupt(Plugin):
         options = self.options
         if options.max_speed_mps is None or self._agreed is None:
             return None
-        index = int(np.searchsorted(self._epochs, t - 1e-9))
-        if index >= self._epochs.size or not self.zupt_epoch[index]:
+        index = self._zupt_epoch_at(t)
+        if index is None:
             return None
         if not self.beyond_linearization(index, ctx) and _agrees(self._zero_velocity(ctx), ctx):
             return None  # the velocity is not what the filter lost
