@@ -203,6 +203,15 @@ def test_own_earth_model_agrees_with_fusion_earth():
     np.testing.assert_allclose(back[0], lat, atol=1e-14)
     np.testing.assert_allclose(back[1], lon, atol=1e-14)
     np.testing.assert_allclose(back[2], h, atol=1e-8)
+    # the earth and transport rates the mechanization uses, both hemispheres, moving E and N
+    from fusion import kernels
+
+    vel = np.array([[3.0, -2.0, 0.5]] * lat.size)
+    w_ie, w_en = _local_rates(lat, h, vel)
+    for k in range(lat.size):
+        _, _, w_ie2, w_en2 = kernels.frame_rates(float(lat[k]), float(h[k]), vel[k])
+        np.testing.assert_allclose(w_ie2, w_ie[k], rtol=1e-12, atol=1e-20)
+        np.testing.assert_allclose(w_en2, w_en[k], rtol=1e-12, atol=1e-20)
 
 
 # ------------------------------------------------------------------------------------------
