@@ -30,6 +30,7 @@ from fusion.attitude import dcm_from_euler, dcm_from_quat, quat_from_rotvec, wra
 from fusion.config import FusionConfig, load_config, parse_config
 from fusion.engine import Engine, RunResult
 from fusion.error_model import ATTITUDE, G0, GYRO_BIAS, POSITION, VELOCITY
+from fusion.fault_detection import ISOLATE
 from fusion.kalman import KalmanFilter
 from fusion.lock import REACQUIRE
 from fusion.metrics import interpolate_truth
@@ -357,6 +358,49 @@ def test_odometer_rest_withholds_zupts_while_the_encoder_creeps() -> None:
     np.testing.assert_allclose(noise.variances[POSITION], [0.0006**2, 0.0006**2, 0.0], rtol=0.02)
     kept = Zupt("zupt", Zupt.Options(odometer_rest_mps=0.006, release_at_motion=False), rec)
     assert all(kept.process_noise(k) is None for k in range(epochs.size))
+
+
+@pytest.mark.parametrize("rate_hz", [1.0, 10.0])
+def test_an_odometer_reading_at_rest_holds_as_long_as_a_start_needs_to_exceed_it(
+    rate_hz: float,
+) -> None:
+    """A reading below ``odometer_rest_mps`` holds ``odometer_rest_mps / haulage_accel_mps2``
+    (0.12 s) after its time stamp: an encoder reported at 1 Hz gives ZUPTs at the two 10-Hz
+    epochs that follow each reading and none at the eight after them, where the machine could
+    be moving with no reading to show it; one reported at 10 Hz keeps every rest epoch."""
+    rec = static_recording()
+    t = np.arange(1.0, 30.0 * rate_hz + 1.0) / rate_hz
+    rec = replace(
+        rec,
+        meta=rec.meta.model_copy(update={"odometer": OdometerMeta(rate_hz=rate_hz)}),
+        odometer=OdometerData(t=t, speed=np.zeros(t.size)),
+    )
+    imu_only = Zupt("zupt", Zupt.Options(), rec)
+    guarded = Zupt("zupt", Zupt.Options(odometer_rest_mps=0.006), rec)
+    epochs = guarded.epochs()
+    age = epochs - t[np.maximum(np.searchsorted(t, epochs, side="right") - 1, 0)]
+    current = (epochs >= t[0]) & (age <= 0.006 / 0.05 + 1e-9)
+    np.testing.assert_array_equal(guarded.zupt_epoch, imu_only.zupt_epoch & current)
+    rest = imu_only.zupt_epoch & (epochs >= t[0])
+    share = guarded.zupt_epoch[rest].mean()
+    assert share == pytest.approx(0.2 if rate_hz == 1.0 else 1.0, abs=0.02)
+
+
+def test_a_haulage_reported_at_1_hz_isolates_nothing_on_a_clean_face(tmp_path: Path) -> None:
+    """configs/full_afkf.yaml on the first 120 s of random world 3 with its odometer at 1 Hz:
+    the machine starts at 89.5 s and the reading at 91 s still shows rest (0.0016 m/s) while
+    it moves at 0.02–0.03 m/s. ZUPTs held on that stale reading made the kinematic local's
+    window χ² 179 against a threshold of 33 and isolated it for 10 s; now no local is
+    isolated."""
+    path = simulate(
+        "longwall-random",
+        tmp_path / "w3",
+        seed=3,
+        overrides=("duration_s=120", "odometer.rate_hz=1"),
+    )
+    result = Engine(load_config(CONFIGS / "full_afkf.yaml"), read_recording(path)).run()
+    print([(round(e.t, 1), e.local, e.action, e.reason) for e in result.faults])
+    assert not [e for e in result.faults if e.action == ISOLATE]
 
 
 def _with_release(config: FusionConfig, release: bool) -> FusionConfig:

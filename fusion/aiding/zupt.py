@@ -92,7 +92,12 @@ the IMU does — a shearer that creeps off at 0.01–0.04 m/s over its first sec
 acceleration the detector can separate from a stop, and a ZUPT of a few mm/s there is a 40σ
 error that also trips the federated fault monitor. A ZUPT then also needs every odometer
 reading of the past ``guard_s`` below the given speed (a few times the encoder's standstill
-noise).
+noise), the last of them at most ``odometer_rest_mps / haulage_accel_mps2`` old: a machine
+starting from rest needs that long to exceed the speed, and after it the machine may be moving
+with no reading yet to show it. An encoder reported at 10 Hz or faster is never that late at
+0.006 m/s and 0.05 m/s²; one reported at 1 Hz had let a start run a second under ZUPTs of
+1 mm/s, and the federated monitor isolate the kinematic local
+(docs/design/2026-12-02-sites-clocks-and-rates.md).
 
 Switching with the motion constraint (seed 002 eq. 18): with the ``motion_constraint`` option
 (the options of the ``odometer`` plugin in ``mode: motion_constraint``, whose measurement
@@ -501,6 +506,13 @@ class ZuptOptions(PluginOptions):
         description="also require every odometer reading of the past guard_s below this speed"
         " (needs odometer.csv); None: the IMU detector alone",
     )
+    haulage_accel_mps2: float = Field(
+        0.05,
+        gt=0,
+        description="with odometer_rest_mps: the machine's largest haulage acceleration; an"
+        " odometer reading at rest holds for odometer_rest_mps / haulage_accel_mps2 after it (a"
+        " start takes that long to exceed the speed), later epochs wait for the next reading",
+    )
     release_at_motion: bool = Field(
         True,
         description="with odometer_rest_mps: when the encoder ends a run of ZUPTs, add the"
@@ -558,7 +570,7 @@ class Zupt(Plugin):
             at_rest = self._odometer_at_rest(options.odometer_rest_mps)
             if options.release_at_motion:
                 self.releases = self._releases(self.zupt_epoch, at_rest)
-            self.zupt_epoch &= at_rest
+            self.zupt_epoch &= at_rest & self._odometer_current(options.odometer_rest_mps)
         self.variance = options.sigma_zero_velocity_mps**2
         self.zero_rate = (
             ZeroAngularRate(recording, options.angular_rate_floor_dps, name)
@@ -596,6 +608,16 @@ class Zupt(Plugin):
         last = np.searchsorted(odometer.t, self._epochs, side="right")
         first = np.searchsorted(odometer.t, self._epochs - self.options.guard_s, side="right")
         return (last > first) & (moving[last] == moving[first])
+
+    def _odometer_current(self, speed_mps: float) -> NDArray[np.bool_]:
+        """Epochs at most ``speed_mps / haulage_accel_mps2`` after the last odometer reading:
+        a machine starting from rest cannot exceed ``speed_mps`` sooner, so a reading at rest
+        still holds; later the machine may be moving with no reading to show it."""
+        odometer = self.recording.odometer
+        assert odometer is not None
+        last = np.searchsorted(odometer.t, self._epochs, side="right") - 1
+        age = self._epochs - odometer.t[np.maximum(last, 0)]
+        return (last >= 0) & (age <= speed_mps / self.options.haulage_accel_mps2)
 
     def _releases(
         self, stationary: NDArray[np.bool_], at_rest: NDArray[np.bool_]
