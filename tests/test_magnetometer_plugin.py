@@ -27,10 +27,11 @@ from fusion.aiding.magnetometer import Magnetometer, MagnetometerOptions
 from fusion.attitude import dcm_from_euler
 from fusion.config import load_config, parse_config
 from fusion.engine import Engine, RunResult
-from fusion.metrics import interpolate_truth
+from fusion.metrics import compute_metrics, interpolate_truth
 from fusion.plugin import Measurement
 from fusion.recording import MagnetometerData, Recording, read_recording
 from fusion.sim.simulate import simulate
+from tests.fault_support import normalized_rms
 from tests.plugin_support import (
     group_rms,
     layout_with,
@@ -488,11 +489,9 @@ def _position_figures(path: Path) -> tuple[float, float]:
     """Horizontal RMS error (m) and horizontal RMS(ε/σ) of ``sins_od_mag_ckf`` on ``path``."""
     rec = read_recording(path)
     assert rec.truth is not None
-    solution = Engine(load_config(CONFIG), rec).run().solution
-    inside, position, *_ = interpolate_truth(rec.truth, solution.t)
-    error = solution.position[inside, :2] - position[:, :2]
-    ratio = error / solution.sigma_position[inside, :2]
-    return float(np.sqrt(np.mean(np.sum(error**2, axis=1)))), float(np.sqrt(np.mean(ratio**2)))
+    result = Engine(load_config(CONFIG), rec).run()
+    rms = compute_metrics(result.solution, rec.truth)["horizontal_rms"]
+    return float(rms), float(np.sqrt(np.mean(normalized_rms(result, rec) ** 2)))
 
 
 @pytest.mark.parametrize("seed", [0, 1])
