@@ -396,19 +396,24 @@ def test_top_speed_is_a_state_the_along_track_row_reads() -> None:
         OdometerOptions(mode="odometer", max_speed_mps=0.6)
 
 
-TOP_SPEED_WORLDS = 8
+TOP_SPEED_WORLDS = (2, 3)
+"""Of random worlds 0–7 at 600 s, the two where ``sins_mc`` without its top speed runs furthest
+from its σ (RMS(ε/σ) east/north 1.89 / 2.06 and 1.69 / 1.64; the other six 0.21–1.90 per axis,
+the most world 5's 0.57 / 1.90). Pooled
+over all eight, the ratios without it were 1.13 / 1.32 at 1d39c4b: within the bound, so those
+worlds no longer told the bound's absence apart."""
 
 
 @pytest.mark.slow
 def test_top_speed_keeps_the_constraint_alone_consistent(tmp_path: Path) -> None:
-    """configs/sins_mc.yaml (the constraint and the ZARU, no odometer) on 8 random worlds of
-    600 s: the position's RMS(ε/σ) east and north pooled over them is at most 1.5. Nothing
-    measures the speed along the track but the machine's top speed: without it the SINS ran
-    along the track at its accelerometer bias (1.5 m/s on world 1, where the shearer cut at
-    0.08 m/s) and the pooled ratios were 1.8–1.9 (world 1: 4.3)."""
+    """configs/sins_mc.yaml (the constraint and the ZARU, no odometer) on random worlds 2 and 3
+    at 600 s (:data:`TOP_SPEED_WORLDS`): the position's RMS(ε/σ) east and north pooled over
+    them is at most 1.5 (measured 0.60 / 0.61). Nothing measures the speed along the track but
+    the machine's top speed: without it the SINS runs along the track at its accelerometer bias
+    and the pooled ratios are 1.79 / 1.86 (1d39c4b)."""
     config = load_config(CONFIGS / "sins_mc.yaml")
     sums, counts = np.zeros(2), np.zeros(2)
-    for seed in range(TOP_SPEED_WORLDS):
+    for seed in TOP_SPEED_WORLDS:
         rec = read_recording(
             simulate(
                 "longwall-random", tmp_path / f"w{seed}", seed=seed, overrides=("duration_s=600",)

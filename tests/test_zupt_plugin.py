@@ -800,17 +800,19 @@ def test_the_constraint_alone_keeps_its_sigma_on_long_random_worlds(
     tmp_path_factory: pytest.TempPathFactory,
 ) -> None:
     """``sins_mc``: nothing sees the heading or the speed along the track, so the position's and
-    the yaw's σ must grow as their errors do. Random worlds 0 and 1 at their own length (48 and
-    64 min), scored as the robustness suite scores them: pooled RMS(ε/σ) east, north and yaw at
-    most 1.5. With the constraint's σ at the cutting vibration alone (0.003 m/s) the lateral row
-    steered the heading: north 1.79, yaw 2.63 (docs/design/2026-12-01-constraint-noise.md)."""
+    the yaw's σ must grow as their errors do. Random world 0 at its own length (48 min), scored
+    as the robustness suite scores it: RMS(ε/σ) east, north and yaw at most 1.5 (measured 0.99 /
+    0.98 / 0.42 at 1d39c4b; world 1's 64 min gave 0.53 / 0.51 / 0.41 and was dropped for CI
+    time). With the constraint's σ at the cutting vibration alone (0.003 m/s) the lateral row
+    once steered the heading: north 1.79, yaw 2.63 over worlds 0 and 1
+    (docs/design/2026-12-01-constraint-noise.md); at 1d39c4b, whose constraint leaves the
+    heading untouched, that variant gives 1.16 / 1.14 / 0.17 here: this test no longer tells
+    it apart."""
     from benchmarks.robustness import run_one
 
     config = load_config(CONFIGS / "sins_mc.yaml")
-    rows = []
-    for seed in (0, 1):
-        directory = simulate("longwall-random", tmp_path_factory.mktemp(f"world{seed}"), seed=seed)
-        rows.append(run_one(config, read_recording(directory, bridge_imu_gaps=True))[0])
+    directory = simulate("longwall-random", tmp_path_factory.mktemp("world0"), seed=0)
+    rows = [run_one(config, read_recording(directory, bridge_imu_gaps=True))[0]]
     for axis in ("e", "n", "yaw"):
         pooled = math.sqrt(
             sum(r[f"nz_{axis}_sumsq"] for r in rows) / sum(r[f"nz_{axis}_count"] for r in rows)
