@@ -18,6 +18,7 @@ from fusion.sim.trajectory import AfcLine, Trajectory
 from fusion.sim.worlds import (
     FAMILIES,
     WorldRanges,
+    dipole_field,
     draw_world,
     family_world,
     ranges_markdown,
@@ -109,7 +110,7 @@ def test_families_are_listed_and_load() -> None:
 # ----------------------------------------------------------------------------- ranges
 def test_every_drawn_parameter_lies_in_its_range() -> None:
     rg = RANGES
-    patterns, pollings, quantized = set(), set(), 0
+    patterns, pollings, quantized, hemispheres = set(), set(), 0, set()
     for seed in range(50):
         w = draw_world(seed)
         f, m, imu, od, mag, uwb = w.face, w.motion, w.imu, w.odometer, w.magnetometer, w.uwb
@@ -120,7 +121,9 @@ def test_every_drawn_parameter_lies_in_its_range() -> None:
             rg.duration_s[1] <= w.duration_s <= rg.max_duration_s
         )
         assert _inside(w.static_start_s, rg.static_start_s)
-        assert _inside(w.origin.lat_deg, rg.lat_deg) and _inside(w.origin.height_m, rg.height_m)
+        assert _inside(abs(w.origin.lat_deg), rg.lat_deg)
+        assert _inside(w.origin.lon_deg, rg.lon_deg) and _inside(w.origin.height_m, rg.height_m)
+        hemispheres.add(math.copysign(1.0, w.origin.lat_deg))
         assert _inside(f.length_m, rg.face_length_m) and _inside(f.azimuth_deg, rg.azimuth_deg)
         assert _inside(f.advance_m, rg.advance_m)
         patterns.add(f.pattern)
@@ -168,9 +171,12 @@ def test_every_drawn_parameter_lies_in_its_range() -> None:
             quantized += 1
             assert _inside(od.counts_per_m, rg.odometer_counts_per_m, 1e-3)
         assert mag.rate_hz in rg.mag_rate_hz
-        assert _inside(mag.field_uT, rg.field_uT) and _inside(
-            mag.declination_deg, rg.declination_deg
-        )
+        assert _inside(mag.declination_deg, rg.declination_deg)
+        dipole_f, dipole_i = dipole_field(w.origin.lat_deg)
+        assert _inside(mag.field_uT / dipole_f, rg.field_factor, 1e-4)
+        offset = abs(mag.inclination_deg) - abs(dipole_i)
+        assert _inside(offset, rg.inclination_offset_deg, 1e-3) or abs(mag.inclination_deg) == 80
+        assert mag.inclination_deg * w.origin.lat_deg > 0.0  # down in the north, up in the south
         assert mag.meta_field_uT is not None and mag.meta_declination_deg is not None
         assert mag.meta_inclination_deg is not None
         assert _inside(abs(mag.meta_field_uT / mag.field_uT - 1.0), rg.meta_field_error, 1e-4)
@@ -201,6 +207,7 @@ def test_every_drawn_parameter_lies_in_its_range() -> None:
         assert _inside(w.support.noise_sigma_m, rg.support_noise_m)
     assert patterns == {"bidirectional", "unidirectional", "three_pass"}
     assert pollings == {"staggered", "round_robin", "simultaneous"}
+    assert hemispheres == {1.0, -1.0}
     assert 10 <= quantized <= 40
 
 

@@ -5,10 +5,11 @@ sensor grade. A filter tuned on them can still break on a face it has never seen
 draws *worlds* from ranges that cover what real faces (and independent simulators) contain:
 the mining pattern (bidirectional, unidirectional with a cleaning run, three traversals),
 re-cuts, face ends that are not square to the face, an AFC whose straightness changes at every
-push, floors that dip and undulate, IMUs whose datasheet is not their realized error, an earth
-field that differs from the one the site states, UWB anchors at the face ends polled in
-different ways, odometer scale, mounting and quantization, and recordings that end anywhere —
-in the middle of a pass, or before the first AFC push.
+push, floors that dip and undulate, sites in either hemisphere at any longitude, IMUs whose
+datasheet is not their realized error, sampled at different rates, an earth field that differs
+from the one the site states, UWB anchors at the face ends polled in different ways, odometer
+rate, scale, mounting and quantization, and recordings that end anywhere — in the middle of a
+pass, or before the first AFC push.
 
 :class:`WorldRanges` holds every range (a pydantic model: each field has a default and a
 one-line description, and it round-trips through YAML). :func:`draw_world` draws one world
@@ -126,8 +127,11 @@ class WorldRanges(_Ranges):
     max_duration_s: float = Field(default=7200.0, gt=0.0, description="longest recording (s)")
     static_start_s: Range = _range(30.0, 120.0, "static period at the start (s)")
     # site and face geometry
-    lat_deg: Range = _range(25.0, 50.0, "origin latitude (deg)")
-    lon_deg: Range = _range(90.0, 125.0, "origin longitude (deg)")
+    # Longwall coalfields lie at 20–68° either side of the equator: India 22–24° N, Queensland
+    # 21–28° S, South Africa 26–27° S, New South Wales 32–35° S, China 34–45° N, the US 37–41° N,
+    # Europe 50–56° N, the Kuzbass 54° N, Vorkuta 67° N.
+    lat_deg: Range = _range(20.0, 68.0, "magnitude: origin latitude (deg), north or south")
+    lon_deg: Range = _range(-180.0, 180.0, "origin longitude (deg)")
     height_m: Range = _range(-1000.0, -200.0, "origin height (m)")
     face_length_m: Range = _range(60.0, 300.0, "face length (m)")
     azimuth_deg: Range = _range(0.0, 360.0, "face azimuth (deg)")
@@ -178,7 +182,9 @@ class WorldRanges(_Ranges):
     # 5 deg/h in-run bias, 0.05 mg/√Hz. A unit's turn-on bias is usually far below its
     # datasheet's repeatability, hence 10–720 deg/h and 0.2–5 mg drawn log-uniformly; scale
     # factor and misalignment: 0.1–0.15 % and 0.05–0.1° class figures of calibrated MEMS units.
-    imu_rate_hz: list[float] = Field(default_factory=lambda: [100.0], description="choices")
+    imu_rate_hz: list[float] = Field(
+        default_factory=lambda: [50.0, 100.0, 200.0], description="choices"
+    )
     gyro_bias_deg_h: Range = _range(10.0, 720.0, "log-uniform: turn-on gyro bias σ (deg/h)")
     accel_bias_mg: Range = _range(0.2, 5.0, "log-uniform: turn-on accel bias σ (mg)")
     gyro_arw_deg_rth: Range = _range(0.1, 1.0, "log-uniform: angle random walk (deg/√h)")
@@ -198,7 +204,8 @@ class WorldRanges(_Ranges):
     initial_velocity_sigma_mps: Range = _range(0.005, 0.02, "meta σ per axis (m/s)")
     # odometer
     odometer_rate_hz: list[float] = Field(
-        default_factory=lambda: [10.0, 20.0, 50.0], description="choices"
+        default_factory=lambda: [1.0, 2.0, 5.0, 10.0, 20.0, 50.0],
+        description="choices (a haulage speed relayed by the shearer's PLC comes at 1–5 Hz)",
     )
     odometer_scale_error: Range = _range(-0.03, 0.03, "scale-factor error δk_D")
     odometer_mounting_deg: Range = _range(-1.0, 1.0, "mounting angle, per axis (deg)")
@@ -211,9 +218,16 @@ class WorldRanges(_Ranges):
     mag_rate_hz: list[float] = Field(
         default_factory=lambda: [10.0, 20.0, 50.0], description="choices"
     )
-    field_uT: Range = _range(45.0, 60.0, "true earth field F (µT)")
-    inclination_deg: Range = _range(35.0, 65.0, "true inclination I (deg)")
-    declination_deg: Range = _range(-10.0, 5.0, "true declination D (deg)")
+    # The field at the coalfields above (IGRF) against the axial dipole's (:func:`dipole_field`):
+    # F from 0.75× (South Africa's anomaly, 28 µT) to 1.2× (China, 54 µT); the inclination
+    # departs from the dipole's by −8° (India) to +18° (South Africa), drawn up to +15° (more,
+    # at mid-latitudes, is steeper than any coalfield's) and at most Vorkuta's 80°; declinations
+    # of ±20°.
+    field_factor: Range = _range(0.75, 1.25, "true F ÷ the dipole's F at the site's latitude")
+    inclination_offset_deg: Range = _range(
+        -10.0, 15.0, "true |I| − the dipole's at the site (deg), at most 80°; sign of the latitude"
+    )
+    declination_deg: Range = _range(-20.0, 20.0, "true declination D (deg)")
     meta_field_error: Range = _range(0.01, 0.05, "magnitude: relative error of the stated F")
     meta_inclination_error_deg: Range = _range(1.0, 4.0, "magnitude: error of the stated I")
     meta_declination_error_deg: Range = _range(0.5, 1.0, "magnitude: error of the stated D")
@@ -318,6 +332,18 @@ class _Draw:
         return np.asarray(v / np.linalg.norm(v))
 
 
+DIPOLE_EQUATOR_UT = 30.1
+"""The geomagnetic axial dipole's field at the equator (µT; IGRF's g₁⁰)."""
+
+
+def dipole_field(lat_deg: float) -> tuple[float, float]:
+    """The axial dipole's total intensity F (µT) and inclination I (deg, down > 0) at latitude
+    ``lat_deg``: ``F = B₀ √(1 + 3 sin²φ)``, ``tan I = 2 tan φ``."""
+    phi = math.radians(lat_deg)
+    f = DIPOLE_EQUATOR_UT * math.sqrt(1.0 + 3.0 * math.sin(phi) ** 2)
+    return f, math.degrees(math.atan(2.0 * math.tan(phi)))
+
+
 def _r(x: float, digits: int = 6) -> float:
     return round(float(x), digits)
 
@@ -396,7 +422,7 @@ def draw_world(
         },
     }
     origin = {
-        "lat_deg": _r(g.u(rg.lat_deg)),
+        "lat_deg": _r(g.signed(rg.lat_deg)),
         "lon_deg": _r(g.u(rg.lon_deg)),
         "height_m": _r(g.u(rg.height_m), 2),
     }
@@ -490,8 +516,10 @@ def draw_world(
         odometer["counts_per_m"] = _r(counts, 3)
 
     mg = _Draw(seed, "magnetometer")
-    f_true = mg.u(rg.field_uT)
-    i_true = mg.u(rg.inclination_deg)
+    dipole_f, dipole_i = dipole_field(origin["lat_deg"])
+    f_true = dipole_f * mg.u(rg.field_factor)
+    offset = mg.u(rg.inclination_offset_deg)
+    i_true = math.copysign(min(max(abs(dipole_i) + offset, 0.0), 80.0), origin["lat_deg"])
     d_true = mg.u(rg.declination_deg)
     hard = mg.unit() * mg.u(rg.hard_iron_uT)
     soft = np.eye(3) + np.diag([mg.u(rg.soft_iron_diagonal) for _ in range(3)])
