@@ -463,14 +463,15 @@ SITE_DURATION = ["duration_s=150"]
 """Short random worlds: a 30–120 s static start, then cutting."""
 
 
-def _south_of_the_equator(north: Path, out: Path, seed: int) -> Path:
-    """The world of ``north`` mirrored across the equator and half way round the earth: the
-    same face, motion and noise, at latitude −L and longitude λ − 180°, with the earth field's
-    inclination (truth and meta.yaml) negated as it is south of the magnetic equator. Gravity
-    is the same (it depends on |L|); the earth rate's vertical component and the field's
-    vertical component change sign."""
-    world = yaml.safe_load((north / "meta.yaml").read_text())["extra"]["world"]["scenario"]
+def _across_the_equator(drawn: Path, out: Path, seed: int) -> Path:
+    """The world of ``drawn`` mirrored across the equator and half way round the earth: the
+    same face, motion and noise, at latitude −L and longitude λ ∓ 180°, with the earth field's
+    inclination (truth and meta.yaml) negated as it is on the other side of the magnetic
+    equator. Gravity is the same (it depends on |L|); the earth rate's vertical component and
+    the field's vertical component change sign."""
+    world = yaml.safe_load((drawn / "meta.yaml").read_text())["extra"]["world"]["scenario"]
     origin, field = world["origin"], world["magnetometer"]
+    lon = origin["lon_deg"]
     return simulate(
         "longwall-random-short",
         out,
@@ -478,7 +479,7 @@ def _south_of_the_equator(north: Path, out: Path, seed: int) -> Path:
         overrides=[
             *SITE_DURATION,
             f"origin.lat_deg={-origin['lat_deg']}",
-            f"origin.lon_deg={origin['lon_deg'] - 180.0}",
+            f"origin.lon_deg={lon - 180.0 if lon > 0.0 else lon + 180.0}",
             f"magnetometer.inclination_deg={-field['inclination_deg']}",
             f"magnetometer.meta_inclination_deg={-field['meta_inclination_deg']}",
         ],
@@ -498,20 +499,22 @@ def _position_figures(path: Path) -> tuple[float, float]:
 def test_a_face_south_of_the_equator_is_navigated_as_its_mirror_in_the_north(
     seed: int, tmp_path: Path
 ) -> None:
-    """The random worlds put every face in the northern hemisphere (a Chinese coal basin's
-    latitudes, a field inclined downwards); a face in Australia or South Africa has the other
-    sign of latitude and of inclination, and a face in the Americas a negative longitude. The
-    same world mirrored there gives the same horizontal RMS within 10 % + 1 cm, within its σ:
-    nothing in the reader, the simulator or the plugins refuses or mishandles such a site
-    (seeds 0–3 at 150 s agree within 3 % + 1 mm). The signs themselves are unit-tested (the
-    earth rate in test_strapdown_truth, the tilt columns in
-    test_h_matches_numerical_differentiation): over 150 s after a static start, the gyro-bias
-    estimate would take up an earth-rate sign error, and the odometer holds the position."""
-    north = simulate(
-        "longwall-random-short", tmp_path / "north", seed=seed, overrides=SITE_DURATION
+    """A face in Australia or South Africa has the other sign of latitude and of inclination
+    from one in China, and a face in the Americas a negative longitude. A random world (either
+    hemisphere) and the same world mirrored across the equator give the same horizontal RMS
+    within 10 % + 1 cm, within their σ: nothing in the reader, the simulator or the plugins
+    refuses or mishandles either site (seeds 0–3 at 150 s agreed within 3 % + 1 mm when the
+    worlds were all northern). The signs themselves are unit-tested (the earth rate in
+    test_strapdown_truth, the tilt columns in test_h_matches_numerical_differentiation): over
+    150 s after a static start, the gyro-bias estimate would take up an earth-rate sign error,
+    and the odometer holds the position."""
+    drawn = simulate(
+        "longwall-random-short", tmp_path / "drawn", seed=seed, overrides=SITE_DURATION
     )
-    south = _south_of_the_equator(north, tmp_path / "south", seed)
-    assert read_recording(south).meta.origin.lat_deg < 0.0
+    mirrored = _across_the_equator(drawn, tmp_path / "mirrored", seed)
+    lat = read_recording(drawn).meta.origin.lat_deg
+    assert read_recording(mirrored).meta.origin.lat_deg == -lat
+    north, south = (drawn, mirrored) if lat > 0.0 else (mirrored, drawn)
     rms_north, ratio_north = _position_figures(north)
     rms_south, ratio_south = _position_figures(south)
     print(f"h. RMS north {rms_north:.4f} m, south {rms_south:.4f} m; RMS(ε/σ)", end=" ")
