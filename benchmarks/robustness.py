@@ -84,7 +84,7 @@ def robustness_configs() -> list[str]:
 SMOKE_CONFIGS = ("full_afkf_rts", "sins_od_cpoem_rts")
 """The CI smoke suite's subset: every plugin in the federated filter with online RTS, and the
 centralized odometer + CPOEM + RTS filter (the two code paths a world can break)."""
-SMOKE_DURATION_S = 200.0
+SMOKE_DURATION_S = 150.0
 """Length of the smoke suite's worlds (s): 20 worlds, both configurations, < 3 min on 2 cores."""
 
 
