@@ -795,6 +795,29 @@ def test_a_lost_zupt_restarts_at_rest_within_the_top_speed(tmp_path: Path) -> No
     assert errors["with"] < 0.2 * errors["without"]
 
 
+def test_a_zero_velocity_after_a_coast_beyond_a_linear_heading_restarts(tmp_path: Path) -> None:
+    """Random world 12 (67° S, IMU at 200 Hz): SINS + ZUPT coasts its first pass and meets the
+    standstill at 256 s at 27 m/s with its heading 31.6° off at a σ of 29.6°. Taken in
+    through the correlations of the first-order model, that zero velocity swung the heading
+    to −8° and left the position 339 m off at a σ of 48 m (7σ to the end of the pass). Beyond
+    :data:`fusion.aiding.zupt.LINEAR_ATTITUDE_SIGMA` the plugin restarts at rest instead, and
+    the position stays within 3σ after it."""
+    path = simulate("longwall-random", tmp_path / "rec", seed=12, overrides=["duration_s=400"])
+    rec = read_recording(path)
+    assert rec.truth is not None
+    result = Engine(load_config(CONFIGS / "sins_zupt.yaml"), rec).run()
+    restarts = [e.t for e in result.faults if e.action == REACQUIRE]
+    assert restarts and 255.0 < restarts[0] < 260.0, restarts
+    sol = result.solution
+    inside, position, *_ = interpolate_truth(rec.truth, sol.t)
+    after = sol.t[inside] > restarts[0]
+    ratio = (sol.position[inside][after, :2] - position[after, :2]) / sol.sigma_position[inside][
+        after, :2
+    ]
+    print(f"restarts at {restarts}; largest |err/σ| after the first {np.abs(ratio).max():.2f}")
+    assert np.abs(ratio).max() < 3.0
+
+
 @pytest.mark.slow
 def test_the_constraint_alone_keeps_its_sigma_on_long_random_worlds(
     tmp_path_factory: pytest.TempPathFactory,

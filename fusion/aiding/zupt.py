@@ -129,7 +129,7 @@ from fusion.aiding.zaru import ZeroAngularRate
 from fusion.earth import OMEGA_IE, normal_gravity
 from fusion.encoder import reading_intervals
 from fusion.error_model import ATTITUDE, GYRO_BIAS, POSITION, VELOCITY, ImuNoise, StateBlock
-from fusion.lock import FIX_GATE_PROBABILITY, MAX_INFLATED_ATTITUDE_SIGMA, Level, Reacquisition
+from fusion.lock import FIX_GATE_PROBABILITY, Level, Reacquisition
 from fusion.plugin import (
     Measurement,
     MeasurementContext,
@@ -149,6 +149,11 @@ SCATTER_FALSE_ALARM = 1e-3
 NOISE_MARGIN = 1.5
 """Factor on the datasheet noise in the scatter test: a unit's white noise may exceed its
 datasheet's typical figure (the random worlds' units: up to 1.25×)."""
+LINEAR_ATTITUDE_SIGMA = math.radians(10.0)
+"""Largest attitude σ at which a zero velocity may correct a coasted SINS through its
+correlations (:meth:`Zupt.beyond_linearization`). The error state turns an error vector by
+``φ×`` where the truth turns it by a rotation of φ; at 3σ = 30° the parts it leaves out,
+``1 − cos φ`` and ``φ − sin φ``, are 13 % and 5 % of φ, at 3σ = 90° 36 % and 36 %."""
 
 
 @dataclass(frozen=True)
@@ -777,12 +782,14 @@ class Zupt(Plugin):
 
     def beyond_linearization(self, index: int, ctx: MeasurementContext) -> bool:
         """With ``max_speed_mps``: a ZUPT epoch at which the filter's speed exceeds the
-        machine's top speed while its attitude σ exceeds
-        :data:`fusion.lock.MAX_INFLATED_ATTITUDE_SIGMA` (beyond some tens of degrees the
-        first-order model describes nothing). The SINS then coasted on a tilt and a heading
-        beyond that model, and a zero velocity taken in through its correlations is
-        overconfident (a 157-m/s ZUPT innovation accepted at a heading σ of 70° left the
-        position 3.4 σ off): the engine asks :meth:`reacquire` instead. A SINS a few m/s off
+        machine's top speed while its attitude σ exceeds :data:`LINEAR_ATTITUDE_SIGMA`. The
+        SINS then coasted on a tilt and a heading beyond the first-order model, and a zero
+        velocity taken in through its correlations is overconfident (a 157-m/s ZUPT
+        innovation accepted at a heading σ of 70° left the position 3.4 σ off; on random
+        world 12, redrawn at c91e26b, one at 27 m/s and a heading σ of 29.6°, 31.6° off,
+        swung the heading to −8° and left the position 339 m off at a σ of 48 m, where the
+        30° of a lock's inflation had been the bound): the engine asks :meth:`reacquire`
+        instead. A SINS a few m/s off
         at a heading σ of a degree (``seed002-rectangle``) is within the model, and the zero
         velocity corrects its position better than a restart would."""
         limit = self.options.max_speed_mps
@@ -792,7 +799,7 @@ class Zupt(Plugin):
             return False
         attitude = ctx.layout.slice(ATTITUDE)
         largest = float(np.max(np.diagonal(ctx.covariance[attitude, attitude])))
-        return largest > MAX_INFLATED_ATTITUDE_SIGMA**2
+        return largest > LINEAR_ATTITUDE_SIGMA**2
 
     def _zupt_epoch_at(self, t: float) -> int | None:
         """The index of the epoch at ``t`` if it is a ZUPT epoch, else None."""
