@@ -151,9 +151,9 @@ NOISE_MARGIN = 1.5
 datasheet's typical figure (the random worlds' units: up to 1.25×)."""
 LINEAR_ATTITUDE_SIGMA = math.radians(10.0)
 """Largest attitude σ at which a zero velocity may correct a coasted SINS through its
-correlations (:meth:`Zupt.beyond_linearization`). The error state turns an error vector by
-``φ×`` where the truth turns it by a rotation of φ; at 3σ = 30° the parts it leaves out,
-``1 − cos φ`` and ``φ − sin φ``, are 13 % and 5 % of φ, at 3σ = 90° 36 % and 36 %."""
+correlations (:meth:`Zupt.beyond_linearization`). The error state turns a vector v by
+``φ × v`` where the truth rotates it by φ: at 3σ = 30° it leaves out ``1 − cos φ`` = 13 % of
+|v| along v and ``1 − sin φ / φ`` = 5 % of the turn; at 3σ = 90°, 100 % and 36 %."""
 
 
 @dataclass(frozen=True)
@@ -789,9 +789,9 @@ class Zupt(Plugin):
         world 12, redrawn at c91e26b, one at 27 m/s and a heading σ of 29.6°, 31.6° off,
         swung the heading to −8° and left the position 339 m off at a σ of 48 m, where the
         30° of a lock's inflation had been the bound): the engine asks :meth:`reacquire`
-        instead. A SINS a few m/s off
-        at a heading σ of a degree (``seed002-rectangle``) is within the model, and the zero
-        velocity corrects its position better than a restart would."""
+        instead. A SINS a few m/s off at a heading σ of a degree (``seed002-rectangle``) is
+        within the model, and the zero velocity corrects its position better than a restart
+        would."""
         limit = self.options.max_speed_mps
         if limit is None or not self.zupt_epoch[index]:
             return False
