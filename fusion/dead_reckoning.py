@@ -80,7 +80,7 @@ def _envelope(
     sig0 = np.deg2rad(recording.meta.initial.sigma.attitude_deg)
     elapsed = t - t[0]
     heading = np.sqrt(sig0[2] ** 2 + (imu.gyro_bias * elapsed) ** 2 + imu.gyro_arw**2 * elapsed)
-    pitch = np.sqrt(sig0[0] ** 2 + (imu.gyro_bias * elapsed) ** 2 + imu.gyro_arw**2 * elapsed)
+    pitch = np.sqrt(sig0[1] ** 2 + (imu.gyro_bias * elapsed) ** 2 + imu.gyro_arw**2 * elapsed)
     step = np.linalg.norm(v_n, axis=1) * dt
     along = np.hypot(
         options.scale_sigma * np.cumsum(step), options.speed_sigma_mps * np.sqrt(np.cumsum(dt**2))

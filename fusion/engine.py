@@ -55,6 +55,7 @@ from fusion.error_model import (
     StateLayout,
     common_blocks,
     heading_coupling,
+    misalignment_prior,
     observable_force,
 )
 from fusion.fault_detection import FaultEvent
@@ -473,11 +474,17 @@ class Engine:
         imu = resolve_imu_noise(config.imu, meta.imu.spec)
         self.imu_noise = imu
         sigma = initial_sigma(meta.initial.sigma, config.filter.initial_sigma_scale)
+        attitude = meta.initial.attitude_deg
+        sigma_attitude, attitude_correlation = misalignment_prior(
+            np.deg2rad([attitude.roll, attitude.pitch, attitude.yaw]),
+            np.deg2rad(sigma["attitude_deg"]),
+        )
         blocks = common_blocks(
             imu,
             sigma["velocity_mps"],
-            np.deg2rad(sigma["attitude_deg"]),
+            sigma_attitude,
             sigma["position_m"],
+            attitude_correlation,
         )
         self.layout = StateLayout(blocks).extended(b for own in self.plugin_blocks for b in own)
         axes = config.filter.invariant_error

@@ -62,7 +62,7 @@ from numpy.typing import ArrayLike, NDArray
 from scipy.spatial.transform import Rotation
 
 from fusion import earth, kernels
-from fusion.attitude import dcm_from_quat
+from fusion.attitude import dcm_from_quat, euler_jacobian
 from fusion.strapdown import HGT, LAT, LON, Q0, VEL
 
 G0 = 9.80665
@@ -133,6 +133,11 @@ class StateBlock:
     unit
         The unit users read the state in, a key of :data:`STATE_UNITS` (``"deg_h"`` for a gyro
         bias held in rad/s); ``""``: its own unit, unnamed.
+    initial_correlation
+        Prior correlation matrix of the block's states (rows of ``size`` numbers), or ``None``
+        for uncorrelated states. The initial misalignment is one: meta.yaml states the σ of the
+        roll, pitch and yaw, which turn into the local-level axes of φ with the heading
+        (:func:`misalignment_prior`).
     """
 
     name: str
@@ -146,6 +151,7 @@ class StateBlock:
     rest_return_s: float | None = None
     bound: float | None = None
     unit: str = ""
+    initial_correlation: tuple[tuple[float, ...], ...] | None = None
 
     def __post_init__(self) -> None:
         if self.rest_return_s is not None and self.rest != 0.0:
@@ -157,11 +163,26 @@ class StateBlock:
             raise ValueError(
                 f"state block {self.name!r}: unit {self.unit!r} is not one of {list(STATE_UNITS)}"
             )
+        if self.initial_correlation is not None and np.shape(self.initial_correlation) != (
+            self.size,
+            self.size,
+        ):
+            raise ValueError(
+                f"state block {self.name!r}: initial_correlation must be {self.size} x"
+                f" {self.size}, not {np.shape(self.initial_correlation)}"
+            )
 
     @property
     def size(self) -> int:
         """Number of states."""
         return len(self.labels)
+
+    def initial_covariance(self) -> NDArray[np.float64]:
+        """The block's prior covariance ``D R D`` (``D = diag(initial_sigma)``)."""
+        sigma = np.asarray(self.initial_sigma, dtype=float)
+        if self.initial_correlation is None:
+            return np.diag(sigma**2)
+        return np.asarray(self.initial_correlation, dtype=float) * np.outer(sigma, sigma)
 
 
 @dataclass(frozen=True)
@@ -221,8 +242,8 @@ class StateLayout:
         return [f"{b.name}.{lab}" for b in self.blocks for lab in b.labels]
 
     def initial_covariance(self) -> NDArray[np.float64]:
-        """Diagonal prior covariance."""
-        return np.diag(np.concatenate([np.square(b.initial_sigma) for b in self.blocks]))
+        """Prior covariance: block diagonal, each block ``D R D`` of its σ and correlation."""
+        return scipy.linalg.block_diag(*(b.initial_covariance() for b in self.blocks))
 
 
 @dataclass(frozen=True)
@@ -282,13 +303,36 @@ class ImuNoise:
         )
 
 
+def misalignment_prior(
+    euler: ArrayLike, sigma_euler: ArrayLike
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """σ and correlation matrix of the misalignment φ (local-level E, N, U; rad) of an attitude
+    whose roll, pitch and yaw ``euler`` (rad) are uncertain by ``sigma_euler`` (rad, 1-σ each,
+    independent): ``P_φ = J⁻¹ diag(σ²) J⁻ᵀ`` with ``J = ∂(roll, pitch, yaw)/∂φ``
+    (:func:`fusion.attitude.euler_jacobian`).
+
+    Facing north a pitch error is a turn about east and a roll error one about north; facing
+    south the same, mirrored; facing north-east each is a mix of both, and a roll known better
+    than the pitch leaves φ_E and φ_N correlated. Taking meta.yaml's ``[roll, pitch, yaw]`` σ as
+    ``[φ_E, φ_N, φ_U]`` gave a shearer facing south, pitch σ 1.3° and roll σ 0.4°, a φ_E σ of
+    0.4° against a 3.9° pitch error: the odometer's first zero speeds were rejected at NIS 62
+    and the run ended 900 km off (docs/design/2026-12-02-initial-attitude-covariance.md)."""
+    jacobian = euler_jacobian(np.asarray(euler, dtype=float))
+    inverse = np.linalg.inv(jacobian)
+    covariance = inverse @ np.diag(np.square(np.asarray(sigma_euler, dtype=float))) @ inverse.T
+    sigma = np.sqrt(np.diag(covariance))
+    return sigma, covariance / np.outer(sigma, sigma)
+
+
 def common_blocks(
     imu: ImuNoise,
     sigma_velocity: ArrayLike,
     sigma_attitude: ArrayLike,
     sigma_position: ArrayLike,
+    attitude_correlation: NDArray[np.float64] | None = None,
 ) -> tuple[StateBlock, ...]:
-    """The 15 common error-state blocks with their priors (SI units)."""
+    """The 15 common error-state blocks with their priors (SI units); ``sigma_attitude`` and
+    ``attitude_correlation`` are the misalignment φ's (:func:`misalignment_prior`)."""
     xyz = ("x", "y", "z")
     enu = ("e", "n", "u")
     tau = imu.bias_correlation_time_s
@@ -300,7 +344,13 @@ def common_blocks(
             VELOCITY, enu, tuple(np.asarray(sigma_velocity, dtype=float).tolist()), unit="m_s"
         ),
         StateBlock(
-            ATTITUDE, enu, tuple(np.asarray(sigma_attitude, dtype=float).tolist()), unit="deg"
+            ATTITUDE,
+            enu,
+            tuple(np.asarray(sigma_attitude, dtype=float).tolist()),
+            unit="deg",
+            initial_correlation=None
+            if attitude_correlation is None
+            else tuple(map(tuple, attitude_correlation.tolist())),
         ),
         StateBlock(
             POSITION, enu, tuple(np.asarray(sigma_position, dtype=float).tolist()), unit="m"

@@ -2,6 +2,7 @@
 
 import numpy as np
 import pytest
+from scipy.spatial.transform import Rotation
 
 from fusion.attitude import dcm_from_euler, quat_from_rotvec, quat_multiply
 from fusion.earth import LocalFrame
@@ -12,6 +13,7 @@ from fusion.error_model import (
     StateLayout,
     common_blocks,
     discretize,
+    misalignment_prior,
     navigation_error,
 )
 from fusion.strapdown import HGT, LAT, LON, Q0, VEL, NavState, Strapdown
@@ -105,3 +107,24 @@ def test_specific_force_filter_is_a_first_order_low_pass() -> None:
         value = low_pass(np.array([0.0, 1.0, 0.0]), 0.01)
     assert value[1] == pytest.approx(1.0 - np.exp(-1.0), abs=0.005)
     assert value[0] == value[2] == 0.0
+
+
+@pytest.mark.parametrize("yaw_deg", [0.0, 45.0, 183.0, 270.0])
+def test_misalignment_prior_is_the_spread_of_the_euler_errors(yaw_deg: float) -> None:
+    """meta.yaml's σ of roll, pitch and yaw, turned into the misalignment φ's covariance, is
+    the covariance of the φ that Euler-angle errors of those σ give (Monte Carlo, 20 000
+    draws): facing north the pitch's σ is φ_E's, facing south-west a mix."""
+    rng = np.random.default_rng(7)
+    euler = np.radians([0.1, -4.7, yaw_deg])
+    sigma = np.radians([0.4, 1.3, 1.3])
+    drawn = euler + sigma * rng.standard_normal((20_000, 3))
+    truth = dcm_from_euler(*euler)
+    computed = dcm_from_euler(drawn[:, 0], drawn[:, 1], drawn[:, 2])
+    # C̃ = (I − φ×) C, so C̃ Cᵀ is the rotation by −φ
+    phi = -Rotation.from_matrix(computed @ truth.T).as_rotvec()
+    sd, correlation = misalignment_prior(euler, sigma)
+    expected = correlation * np.outer(sd, sd)
+    sample = np.cov(phi.T)
+    assert np.allclose(sample, expected, atol=0.03 * sigma.max() ** 2)
+    if yaw_deg == 0.0:  # facing north: pitch about east, roll about north
+        assert sd[:2] == pytest.approx(sigma[[1, 0]], rel=0.01)
