@@ -1056,13 +1056,14 @@ class Engine:
         if lock is not None and lock.observe(t, res.accepted):
             holders = self._holders(src, t)
             if not holders:
+                span = lock.span_s(t)
                 lock.reset()
                 if not self._reacquire(src, t, sins, bank):
                     factor, doubt = 1.0, plugin.lost_lock_doubt(t, ctx)
                     if doubt is None and lock.first_inflation():
                         statistic_covariance = kf.P if shared is None else shared
                         factor = self._inflate(rows, statistic_covariance, res, bank)
-                    bank.faults.append(self._lost_lock(src, t, res, factor, doubt))
+                    bank.faults.append(self._lost_lock(src, t, res, factor, doubt, span))
             elif lock.first_dispute():
                 bank.faults.append(self._disputed_lock(src, t, res, holders))
                 if jumps is not None and signature is not None:
@@ -1177,12 +1178,19 @@ class Engine:
         return factor
 
     def _lost_lock(
-        self, src: int, t: float, res: UpdateResult, factor: float, doubt: str | None
+        self,
+        src: int,
+        t: float,
+        res: UpdateResult,
+        factor: float,
+        doubt: str | None,
+        span_s: float,
     ) -> FaultEvent:
-        """The ``faults.csv`` line of plugin ``src``'s lost lock, with the inflation (1: none,
-        for the plugin's ``doubt`` or the last one having brought no update back)."""
+        """The ``faults.csv`` line of plugin ``src``'s lost lock over the last ``span_s``, with
+        the inflation (1: none, for the plugin's ``doubt`` or the last one having brought no
+        update back)."""
         name = self.plugins[src].name
-        reason = f"every update of {name} rejected for {self.config.filter.lock_window_s:g} s; "
+        reason = f"every update of {name} rejected for {span_s:.3g} s; "
         if doubt is not None:
             reason += f"not inflated: {doubt}"
         elif factor > 1.0:

@@ -36,8 +36,11 @@ recording. Not when the plugin doubts that the lost lock is the SINS's
 claims, which a car at a steady speed fools): the line is written, nothing inflated. Only the
 SINS states are inflated: the rejected plugin's own states (mounting, scale)
 would otherwise take up the next update instead of the SINS. Once per loss: a lost lock again before
-a window with most updates accepted is only reported (:meth:`LockMonitor.first_inflation`). Either
-way the monitor starts over.
+a window with most updates accepted is only reported (:meth:`LockMonitor.first_inflation`). An
+encoder cannot say where the machine is, but at a standstill it can say what the machine does:
+once an inflation has not brought its readings back, it re-acquires at rest (velocity zero, the
+tilt from the accelerometers, :class:`RestLevel`;
+:meth:`fusion.aiding.odometer.Odometer.reacquire`). Either way the monitor starts over.
 """
 
 from __future__ import annotations
@@ -49,7 +52,9 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from fusion.error_model import ATTITUDE, COMMON_BLOCKS
+from fusion.earth import normal_gravity
+from fusion.error_model import ATTITUDE, COMMON_BLOCKS, ImuNoise
+from fusion.recording import Recording
 
 LOST_LOCK, REACQUIRE, DISPUTED = "lost lock", "reacquire", "disputed"
 
@@ -77,6 +82,60 @@ class Reacquisition:
     velocity_enu: NDArray[np.float64]
     velocity_covariance: NDArray[np.float64]
     level: Level | None = None
+
+
+def level(force_n: NDArray[np.float64]) -> NDArray[np.float64]:
+    """The attitude error ``φ`` (rad, local ENU) of a SINS at rest whose nominal attitude puts
+    the measured specific force at ``force_n``: the rotation, about a horizontal axis, that
+    turns it up (``C ← R(φ) C̃``; exact for any tilt, ``φ ≈ (f_n, −f_e)/g`` for a small one)."""
+    unit = force_n / np.linalg.norm(force_n)
+    axis = np.cross(unit, np.array([0.0, 0.0, 1.0]))
+    sine = float(np.linalg.norm(axis))
+    if sine == 0.0:
+        return np.zeros(3) if unit[2] > 0 else np.array([math.pi, 0.0, 0.0])
+    return axis / sine * math.atan2(sine, float(unit[2]))
+
+
+class RestLevel:
+    """The tilt of a machine known to stand, from its accelerometers (:class:`Level`): the
+    re-acquisition of a plugin that knows the standstill (a ZUPT, an encoder at rest).
+
+    The mean specific force of the standstill's last seconds, less the fed-back accelerometer
+    bias, is the vertical (:func:`level`) to within the datasheet accelerometer bias over
+    gravity (an unknown bias tilts the measured vertical by ``b/g``) and the mean's white noise
+    (the samples' scatter over their number)."""
+
+    def __init__(self, recording: Recording) -> None:
+        self._imu = recording.imu
+        spec = recording.meta.imu.spec
+        self._accel_bias_sigma = (
+            ImuNoise.from_datasheet(**spec.model_dump()).accel_bias
+            if spec is not None and None not in spec.model_dump().values()
+            else None
+        )
+        origin = recording.meta.origin
+        self._gravity = float(normal_gravity(math.radians(origin.lat_deg), origin.height_m))
+
+    def over(
+        self,
+        start: float,
+        end: float,
+        c_b_n: NDArray[np.float64],
+        accel_bias: NDArray[np.float64],
+    ) -> Level | None:
+        """The level from the IMU samples in ``(start, end]`` at the nominal attitude
+        ``c_b_n`` with the fed-back bias ``accel_bias`` (m/s², body); None without a sample."""
+        samples = (self._imu.t > start) & (self._imu.t <= end)
+        accel = self._imu.accel[samples]
+        if not accel.shape[0]:
+            return None
+        tilt = level(c_b_n @ (accel.mean(axis=0) - accel_bias))
+        n = accel.shape[0]
+        scatter = float(np.mean(np.var(accel, axis=0, ddof=1))) / n if n > 1 else 0.0
+        variance = scatter / self._gravity**2
+        if self._accel_bias_sigma is not None:
+            variance += (self._accel_bias_sigma / self._gravity) ** 2
+        return Level(tilt, variance)
 
 
 FIX_GATE_PROBABILITY = 0.999
@@ -138,9 +197,13 @@ class LockMonitor:
     Parameters
     ----------
     window_s
-        Length of the window (s).
+        Shortest length of the window (s).
     min_updates
-        Updates the window must hold before a lost lock is declared.
+        Updates the window must hold before a lost lock is declared: it reaches back as far as
+        its latest ``min_updates`` updates, beyond ``window_s`` for a slow sensor. A window of
+        ``window_s`` alone never held 10 readings of an encoder at 1 or 2 Hz, and a SINS that
+        tilted away from its first zero speed coasted 900 km with every one rejected and no
+        line in ``faults.csv`` (docs/design/2026-12-02-initial-attitude-covariance.md).
     """
 
     def __init__(self, window_s: float, min_updates: int) -> None:
@@ -184,12 +247,16 @@ class LockMonitor:
             self._since = t
         self._updates.append((t, accepted))
         self._accepted += accepted
-        while self._updates[0][0] <= t - self.window_s:
+        while len(self._updates) > self.min_updates and self._updates[0][0] <= t - self.window_s:
             self._accepted -= self._updates.popleft()[1]
         full = t - self._since >= self.window_s and len(self._updates) >= self.min_updates
         if full and 2 * self._accepted >= len(self._updates):
             self._inflated = False  # the lock is back: a window with most updates accepted
         return full and self._accepted == 0
+
+    def span_s(self, t: float) -> float:
+        """How far back from ``t`` the window reaches (s): its first update's age."""
+        return t - self._updates[0][0] if self._updates else 0.0
 
     def reset(self) -> None:
         """Start over (after a re-acquisition, or a lost lock reported): the next lost lock

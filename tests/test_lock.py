@@ -165,6 +165,41 @@ def test_a_second_lost_lock_inflates_only_after_the_lock_came_back() -> None:
     assert monitor.first_inflation()
 
 
+def test_a_slow_sensor_s_window_reaches_back_to_its_min_updates() -> None:
+    """An encoder at 2 Hz has 6 readings in a 3-s window: a window of 3 s alone never held the
+    10 a lost lock needs, and every reading rejected was never reported."""
+    monitor = LockMonitor(window_s=3.0, min_updates=10)
+    t = 0.0
+    while not monitor.observe(t := t + 0.5, accepted=False):
+        assert t < 20.0
+    assert t == pytest.approx(5.0)  # the 10th reading
+    assert monitor.span_s(t) == pytest.approx(4.5)
+
+
+def test_an_odometer_at_rest_levels_a_sins_the_inflation_did_not_bring_back(
+    tmp_path: Path,
+) -> None:
+    """Random world 27 starts at rest with a pitch 3.9° off; here meta.yaml states a pitch σ
+    of 0.42° (9σ). Every zero speed is rejected; the inflation at the first lost lock does not
+    bring them back, and at the second the encoder, which shows the machine standing since the
+    start, restarts the velocity at zero, the tilt from the accelerometers and the position
+    where the filter first agreed with it (it coasted 10 km in 30 s before
+    :meth:`fusion.aiding.odometer.Odometer.reacquire`)."""
+    path = simulate("longwall-random", tmp_path / "rec", seed=27, overrides=["duration_s=30"])
+    meta = yaml.safe_load((path / "meta.yaml").read_text(encoding="utf-8"))
+    meta["initial"]["sigma"]["attitude_deg"] = [0.42, 0.42, 1.32]
+    (path / "meta.yaml").write_text(yaml.safe_dump(meta), encoding="utf-8")
+    recording = read_recording(path)
+    result = Engine(load_config(CONFIGS / "sins_od_ckf.yaml"), recording).run()
+    actions = [e.action for e in result.faults]
+    assert actions == [LOST_LOCK, REACQUIRE]
+    assert "levelled" in result.faults[1].reason
+    assert recording.truth is not None
+    inside, truth, *_ = interpolate_truth(recording.truth, result.solution.t)
+    error = result.solution.position[inside, :2] - truth[:, :2]
+    assert np.hypot(*error[-1]) < 0.5
+
+
 def test_odometer_lost_lock_inflates_instead_of_coasting(tmp_path: Path) -> None:
     """Harsh random world 9: a gyro bias of 2700 °/h against a prior of ≈ 720 °/h tilts the
     SINS faster than its covariance allows; every odometer update is rejected from the static

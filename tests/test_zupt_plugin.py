@@ -23,7 +23,6 @@ from fusion.aiding.zupt import (
     Zupt,
     default_thresholds,
     detect_stationary,
-    level,
     window_samples,
 )
 from fusion.attitude import dcm_from_euler, dcm_from_quat, quat_from_rotvec, wrap_angle
@@ -32,7 +31,7 @@ from fusion.engine import Engine, RunResult
 from fusion.error_model import ATTITUDE, G0, GYRO_BIAS, POSITION, VELOCITY
 from fusion.fault_detection import ISOLATE
 from fusion.kalman import KalmanFilter
-from fusion.lock import REACQUIRE
+from fusion.lock import REACQUIRE, level
 from fusion.metrics import interpolate_truth
 from fusion.plugin import WIDEN, Measurement, PluginError, create_plugin
 from fusion.recording import ImuSpec, OdometerData, OdometerMeta, Recording, read_recording

@@ -102,11 +102,14 @@ from typing import Literal
 import numpy as np
 from numpy.typing import NDArray
 from pydantic import Field, model_validator
+from scipy.stats import chi2
 
 from fusion.aiding.reference_speed import ReferenceSpeed, reading_noise
 from fusion.aiding.zaru import ZeroAngularRate
 from fusion.attitude import dcm_from_euler, skew
-from fusion.error_model import ATTITUDE, GYRO_BIAS, KNOWN_SIGMAS, VELOCITY, StateBlock
+from fusion.encoder import reading_intervals
+from fusion.error_model import ATTITUDE, GYRO_BIAS, KNOWN_SIGMAS, POSITION, VELOCITY, StateBlock
+from fusion.lock import FIX_GATE_PROBABILITY, Reacquisition, RestLevel
 from fusion.plugin import Measurement, MeasurementContext, MissingStream, Plugin, PluginOptions
 from fusion.recording import Recording
 
@@ -117,6 +120,9 @@ slipping but broken (left to the fault monitor). On a harsh random world the sli
 by nothing else, took in jumps of +0.7, +1.6, +3.7 … +1.9·10⁴ within 20 s and the run ended
 17 m off."""
 CHI2_1_MEDIAN = 0.4549364  # median of χ²₁
+_AGREEMENT_THRESHOLD = float(chi2.ppf(FIX_GATE_PROBABILITY, 3))
+"""χ²₃ bound within which the filter agrees with an encoder reading (mode ``odometer``): the
+position then is one a later re-acquisition at rest may go back to (:meth:`Odometer.reacquire`)."""
 
 
 def reading_jitter(speed: NDArray[np.float64], window: int) -> NDArray[np.float64]:
@@ -164,6 +170,18 @@ def still_readings(
     sigma = np.maximum(options.sigma_speed_mps, reading_noise(speed, first, last))
     reading_still = np.abs(speed) < 3.0 * options.sigma_speed_mps
     return reading_still & (np.abs(mean) <= 3.0 * sigma / np.sqrt(count))
+
+
+def _agrees(measurement: Measurement, ctx: MeasurementContext) -> bool:
+    """Whether the filter's covariance explains an encoder reading's innovation (three rows,
+    :data:`_AGREEMENT_THRESHOLD`)."""
+    h = measurement.H
+    s = h @ ctx.covariance @ h.T + measurement.R
+    try:
+        statistic = float(measurement.z @ np.linalg.solve(s, measurement.z))
+    except np.linalg.LinAlgError:
+        return False
+    return statistic <= _AGREEMENT_THRESHOLD
 
 
 class OdometerOptions(PluginOptions):
@@ -337,11 +355,30 @@ class Odometer(Plugin):
         self.at_rest = self._standstill() if self.use_speed else np.empty(0, bool)
         """Readings at which the encoder shows the machine standing: the ZARU, the slip's rest
         and the columns' zero speed (:meth:`_reference_speed`) all read it."""
+        self._travel = (
+            np.cumsum(np.abs(self.speed) * reading_intervals(recording.odometer.t))
+            if self.use_speed and recording.odometer is not None and self.speed.size > 1
+            else np.zeros(self.speed.size)
+        )
+        self._rest_level = RestLevel(recording)
+        still = self.still if self.use_speed else np.zeros(self.speed.size, bool)
+        starts = np.flatnonzero(still & ~np.concatenate([[False], still[:-1]]))
+        self._still_since = np.where(
+            still,
+            starts[np.maximum(np.searchsorted(starts, np.arange(still.size), "right") - 1, 0)]
+            if starts.size
+            else 0,
+            np.arange(still.size) + 1,
+        )
+        """Per reading, the first reading of the still run it belongs to (after it if moving)."""
+        self.start_run()
 
     def start_run(self) -> None:
         """Forget a run's learned noise, reference travel and rest scatter."""
         self._excess.clear()
         self._index = 0
+        self._agreed: tuple[int, NDArray[np.float64], NDArray[np.float64]] | None = None
+        self._lost_at: int | None = None  # the reading of the last lost lock left to inflation
         self.reference.start_run()
         if self.zero_rate is not None:
             self.zero_rate.start_run()
@@ -427,6 +464,10 @@ class Odometer(Plugin):
         """Residual of the SINS velocity in m against the odometer and the constraint, plus
         the zero angular rate at a standstill if configured."""
         velocity = self._velocity(index, ctx)
+        if self.use_speed and (self._agreed is None or self._may_agree(index, velocity, ctx)):
+            rot = ctx.rotation_to_local
+            pos = ctx.layout.slice(POSITION)
+            self._agreed = (index, ctx.position_enu, rot.T @ ctx.covariance[pos, pos] @ rot)
         if not self.at_rest.size or not self.at_rest[index]:
             return velocity
         if self.options.slip_detection:
@@ -435,6 +476,58 @@ class Odometer(Plugin):
             return velocity
         t = self.recording.odometer.t  # type: ignore[union-attr]
         return velocity.stacked_with(self.zero_rate.measure(t[index - 1], t[index], ctx))
+
+    def _may_agree(self, index: int, velocity: Measurement, ctx: MeasurementContext) -> bool:
+        """Whether reading ``index`` is a newer position to go back to (:meth:`reacquire`): the
+        filter agrees with it, and it is not a later reading of a standstill whose earlier one
+        the filter already agreed with (the machine has not moved since; a filter whose
+        inflated variances admit a reading after its SINS drifted agrees with a worse one)."""
+        assert self._agreed is not None
+        if self._agreed[0] >= self._still_since[index]:
+            return False
+        return _agrees(velocity, ctx)
+
+    def reacquire(self, t: float, ctx: MeasurementContext) -> Reacquisition | None:
+        """At a standstill the encoder shows (mode ``odometer``), for a filter that rejected
+        every reading of it: the machine stands, whatever the SINS says.
+
+        - Velocity zero, with the encoder's speed variance.
+        - The tilt from the accelerometers over the last ``rest_guard_s``
+          (:class:`fusion.lock.RestLevel`).
+        - The position at the last reading the filter agreed with (χ² within
+          :data:`fusion.lock.FIX_GATE_PROBABILITY`; the first reading of the run if none did),
+          with that reading's covariance plus ``(d (1 + 3 σ_k))²/3`` per axis for the travel d
+          the encoder counted since: the machine is anywhere within that reach of it.
+
+        Only for a lock lost again after the variances' inflation (:mod:`fusion.lock`) did not
+        bring the readings back: a gyro bias far beyond its prior tilts a levelled SINS away
+        again within seconds, and the inflation lets the filter learn it (harsh random world 9,
+        2700 °/h against 720 °/h: levelled every 3 s, 25 m off after 150 s). But the inflation
+        catches up with a velocity error that grows by g·tilt every second only by chance: a
+        SINS that starts at rest on a pitch 3.9° off at a σ of 0.4° coasted 900 km
+        (docs/design/2026-12-02-initial-attitude-covariance.md). None while the machine moves,
+        before any reading, and at a lock's first loss since the filter last agreed."""
+        if not self.use_speed or self._agreed is None:
+            return None
+        odometer_t = self.recording.odometer.t  # type: ignore[union-attr]
+        index = int(np.searchsorted(odometer_t, t, side="right")) - 1
+        if index < 0 or not self.at_rest[index]:
+            return None
+        if self._lost_at is None or self._lost_at < self._agreed[0]:
+            self._lost_at = index  # a first loss: the inflation's turn
+            return None
+        level = self._rest_level.over(t - self.options.rest_guard_s, t, ctx.c_b_n, ctx.accel_bias)
+        if level is None:
+            return None
+        since, position, covariance = self._agreed
+        reach = (self._travel[index] - self._travel[since]) * (1.0 + 3.0 * self.options.scale_sigma)
+        return Reacquisition(
+            position,
+            covariance + reach**2 / 3.0 * np.eye(3),
+            np.zeros(3),
+            self.options.sigma_speed_mps**2 * np.eye(3),
+            level,
+        )
 
     def _velocity(self, index: int, ctx: MeasurementContext) -> Measurement:
         """Residual of the SINS velocity in m against the odometer and the constraint."""

@@ -129,7 +129,7 @@ from fusion.aiding.zaru import ZeroAngularRate
 from fusion.earth import OMEGA_IE, normal_gravity
 from fusion.encoder import reading_intervals
 from fusion.error_model import ATTITUDE, GYRO_BIAS, POSITION, VELOCITY, ImuNoise, StateBlock
-from fusion.lock import FIX_GATE_PROBABILITY, Level, Reacquisition
+from fusion.lock import FIX_GATE_PROBABILITY, Reacquisition, RestLevel
 from fusion.plugin import (
     Measurement,
     MeasurementContext,
@@ -424,27 +424,6 @@ def _agrees(zupt: Measurement, ctx: MeasurementContext) -> bool:
     return statistic <= _AGREEMENT_THRESHOLD
 
 
-def level(force_n: NDArray[np.float64]) -> NDArray[np.float64]:
-    """The attitude error ``φ`` (rad, local ENU) of a SINS at rest whose nominal attitude puts
-    the measured specific force at ``force_n``: the rotation, about a horizontal axis, that
-    turns it up (``C ← R(φ) C̃``; exact for any tilt, ``φ ≈ (f_n, −f_e)/g`` for a small one)."""
-    unit = force_n / np.linalg.norm(force_n)
-    axis = np.cross(unit, np.array([0.0, 0.0, 1.0]))
-    sine = float(np.linalg.norm(axis))
-    if sine == 0.0:
-        return np.zeros(3) if unit[2] > 0 else np.array([math.pi, 0.0, 0.0])
-    return axis / sine * math.atan2(sine, float(unit[2]))
-
-
-def _white_variance(accel: NDArray[np.float64]) -> float:
-    """Variance (m²/s⁴) of one horizontal component of the mean of samples ``accel``: their
-    scatter about the mean over their number."""
-    n = accel.shape[0]
-    if n < 2:
-        return 0.0
-    return float(np.mean(np.var(accel, axis=0, ddof=1))) / n
-
-
 REST_NOISE_WINDOW_S = 10.0
 """How far back (s) a release takes the encoder's noise at rest from: a short stop of a
 shearer's, tens of readings."""
@@ -587,18 +566,7 @@ class Zupt(Plugin):
             if options.motion_constraint is not None
             else None
         )
-        self._imu = imu
-        spec = recording.meta.imu.spec
-        self._accel_bias_sigma = (
-            ImuNoise.from_datasheet(**spec.model_dump()).accel_bias
-            if spec is not None and None not in spec.model_dump().values()
-            else None
-        )
-        self._gravity = float(
-            normal_gravity(
-                math.radians(recording.meta.origin.lat_deg), recording.meta.origin.height_m
-            )
-        )
+        self._rest_level = RestLevel(recording)
         self.start_run()
 
     def _odometer_at_rest(self, speed_mps: float) -> NDArray[np.bool_]:
@@ -835,10 +803,8 @@ class Zupt(Plugin):
         the gyro bias's, inflated as any other).
 
         - Velocity zero, with the ZUPT's variance.
-        - The tilt (:func:`level`) from the mean specific force of the standstill's last
-          ``guard_s`` less the fed-back accelerometer bias, to within the datasheet
-          accelerometer bias over gravity (an unknown bias tilts the measured vertical by
-          ``b/g``) and the mean's white noise.
+        - The tilt from the accelerometers over the standstill's last ``guard_s``
+          (:class:`fusion.lock.RestLevel`).
         - The position of the last standstill the filter agreed with (the ZUPT within
           χ²₃(:data:`fusion.lock.FIX_GATE_PROBABILITY`) of its velocity covariance), with that
           epoch's covariance plus ``(v_max Δt)²/3`` per axis: the machine is anywhere within
@@ -857,14 +823,9 @@ class Zupt(Plugin):
             return None
         if not self.beyond_linearization(index, ctx) and _agrees(self._zero_velocity(ctx), ctx):
             return None  # the velocity is not what the filter lost
-        samples = (self._imu.t > t - options.guard_s) & (self._imu.t <= t)
-        if not samples.any():
+        level = self._rest_level.over(t - options.guard_s, t, ctx.c_b_n, ctx.accel_bias)
+        if level is None:
             return None
-        force = self._imu.accel[samples].mean(axis=0) - ctx.accel_bias
-        tilt = level(ctx.c_b_n @ force)
-        variance = _white_variance(self._imu.accel[samples]) / self._gravity**2
-        if self._accel_bias_sigma is not None:
-            variance += (self._accel_bias_sigma / self._gravity) ** 2
         since, position, covariance = self._agreed
         spread = (options.max_speed_mps * (t - since)) ** 2 / 3.0
         return Reacquisition(
@@ -872,7 +833,7 @@ class Zupt(Plugin):
             covariance + spread * np.eye(3),
             np.zeros(3),
             self.variance * np.eye(3),
-            Level(tilt, variance),
+            level,
         )
 
     def _contradicted(
