@@ -48,13 +48,19 @@ from __future__ import annotations
 import math
 from collections import deque
 from dataclasses import dataclass
+from functools import cache
+from typing import TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import NDArray
+from scipy.stats import chi2
 
 from fusion.earth import normal_gravity
 from fusion.error_model import ATTITUDE, COMMON_BLOCKS, ImuNoise
 from fusion.recording import Recording
+
+if TYPE_CHECKING:
+    from fusion.plugin import Measurement
 
 LOST_LOCK, REACQUIRE, DISPUTED = "lost lock", "reacquire", "disputed"
 
@@ -141,6 +147,25 @@ class RestLevel:
 FIX_GATE_PROBABILITY = 0.999
 """χ² probability within which a re-acquisition fix of a plugin without a gate of its own agrees
 with the filter (and is taken in as an update rather than restarting the position)."""
+
+
+@cache
+def _agreement_threshold(rows: int) -> float:
+    return float(chi2.ppf(FIX_GATE_PROBABILITY, rows))
+
+
+def agrees(measurement: Measurement, covariance: NDArray[np.float64]) -> bool:
+    """Whether the filter's ``covariance`` explains a measurement's innovation: ``zᵀ S⁻¹ z``
+    with ``S = H P Hᵀ + R`` within χ²_m(:data:`FIX_GATE_PROBABILITY`) for its m rows. A plugin
+    that re-acquires at rest (a ZUPT, an encoder) keeps the position of the last epoch that
+    agreed as the place to go back to."""
+    h = measurement.H
+    s = h @ covariance @ h.T + measurement.R
+    try:
+        statistic = float(measurement.z @ np.linalg.solve(s, measurement.z))
+    except np.linalg.LinAlgError:
+        return False
+    return statistic <= _agreement_threshold(measurement.z.size)
 
 
 MAX_FADING = 1e4

@@ -102,14 +102,13 @@ from typing import Literal
 import numpy as np
 from numpy.typing import NDArray
 from pydantic import Field, model_validator
-from scipy.stats import chi2
 
 from fusion.aiding.reference_speed import ReferenceSpeed, reading_noise
 from fusion.aiding.zaru import ZeroAngularRate
 from fusion.attitude import dcm_from_euler, skew
 from fusion.encoder import reading_intervals
 from fusion.error_model import ATTITUDE, GYRO_BIAS, KNOWN_SIGMAS, POSITION, VELOCITY, StateBlock
-from fusion.lock import FIX_GATE_PROBABILITY, Reacquisition, RestLevel
+from fusion.lock import Reacquisition, RestLevel, agrees
 from fusion.plugin import Measurement, MeasurementContext, MissingStream, Plugin, PluginOptions
 from fusion.recording import Recording
 
@@ -120,9 +119,6 @@ slipping but broken (left to the fault monitor). On a harsh random world the sli
 by nothing else, took in jumps of +0.7, +1.6, +3.7 … +1.9·10⁴ within 20 s and the run ended
 17 m off."""
 CHI2_1_MEDIAN = 0.4549364  # median of χ²₁
-_AGREEMENT_THRESHOLD = float(chi2.ppf(FIX_GATE_PROBABILITY, 3))
-"""χ²₃ bound within which the filter agrees with an encoder reading (mode ``odometer``): the
-position then is one a later re-acquisition at rest may go back to (:meth:`Odometer.reacquire`)."""
 
 
 def reading_jitter(speed: NDArray[np.float64], window: int) -> NDArray[np.float64]:
@@ -170,18 +166,6 @@ def still_readings(
     sigma = np.maximum(options.sigma_speed_mps, reading_noise(speed, first, last))
     reading_still = np.abs(speed) < 3.0 * options.sigma_speed_mps
     return reading_still & (np.abs(mean) <= 3.0 * sigma / np.sqrt(count))
-
-
-def _agrees(measurement: Measurement, ctx: MeasurementContext) -> bool:
-    """Whether the filter's covariance explains an encoder reading's innovation (three rows,
-    :data:`_AGREEMENT_THRESHOLD`)."""
-    h = measurement.H
-    s = h @ ctx.covariance @ h.T + measurement.R
-    try:
-        statistic = float(measurement.z @ np.linalg.solve(s, measurement.z))
-    except np.linalg.LinAlgError:
-        return False
-    return statistic <= _AGREEMENT_THRESHOLD
 
 
 class OdometerOptions(PluginOptions):
@@ -362,14 +346,10 @@ class Odometer(Plugin):
         )
         self._rest_level = RestLevel(recording)
         still = self.still if self.use_speed else np.zeros(self.speed.size, bool)
-        starts = np.flatnonzero(still & ~np.concatenate([[False], still[:-1]]))
-        self._still_since = np.where(
-            still,
-            starts[np.maximum(np.searchsorted(starts, np.arange(still.size), "right") - 1, 0)]
-            if starts.size
-            else 0,
-            np.arange(still.size) + 1,
-        )
+        readings = np.arange(still.size)
+        started = still & ~np.concatenate([[False], still[:-1]])
+        run_start = np.maximum.accumulate(np.where(started, readings, 0))
+        self._still_since = np.where(still, run_start, readings + 1)
         """Per reading, the first reading of the still run it belongs to (after it if moving)."""
         self.start_run()
 
@@ -485,7 +465,7 @@ class Odometer(Plugin):
         assert self._agreed is not None
         if self._agreed[0] >= self._still_since[index]:
             return False
-        return _agrees(velocity, ctx)
+        return agrees(velocity, ctx.covariance)
 
     def reacquire(self, t: float, ctx: MeasurementContext) -> Reacquisition | None:
         """At a standstill the encoder shows (mode ``odometer``), for a filter that rejected

@@ -129,7 +129,7 @@ from fusion.aiding.zaru import ZeroAngularRate
 from fusion.earth import OMEGA_IE, normal_gravity
 from fusion.encoder import reading_intervals
 from fusion.error_model import ATTITUDE, GYRO_BIAS, POSITION, VELOCITY, ImuNoise, StateBlock
-from fusion.lock import FIX_GATE_PROBABILITY, Reacquisition, RestLevel
+from fusion.lock import Reacquisition, RestLevel, agrees
 from fusion.plugin import (
     Measurement,
     MeasurementContext,
@@ -329,7 +329,6 @@ def _quiet(x: NDArray[np.float64], sigma: float, size: int, causal: bool) -> NDA
 MOVING_PROBABILITY = 0.999
 """A SINS velocity beyond this quantile of χ²(3) under its own covariance is a moving machine."""
 _MOVING_THRESHOLD = float(chi2.ppf(MOVING_PROBABILITY, 3))
-_AGREEMENT_THRESHOLD = float(chi2.ppf(FIX_GATE_PROBABILITY, 3))
 
 
 def _turning(zaru: Measurement, ctx: MeasurementContext) -> bool:
@@ -410,18 +409,6 @@ def _moving(ctx: MeasurementContext) -> bool:
     except np.linalg.LinAlgError:
         return False
     return statistic > _MOVING_THRESHOLD
-
-
-def _agrees(zupt: Measurement, ctx: MeasurementContext) -> bool:
-    """Whether the filter's velocity covariance explains the ZUPT's innovation (χ²₃ at
-    :data:`fusion.lock.FIX_GATE_PROBABILITY`); ``H P Hᵀ`` is the velocity block."""
-    velocity = ctx.layout.slice(VELOCITY)
-    s = ctx.covariance[velocity, velocity] + zupt.R
-    try:
-        statistic = float(zupt.z @ np.linalg.solve(s, zupt.z))
-    except np.linalg.LinAlgError:
-        return False
-    return statistic <= _AGREEMENT_THRESHOLD
 
 
 REST_NOISE_WINDOW_S = 10.0
@@ -716,7 +703,7 @@ class Zupt(Plugin):
             self._contradicted_since = None
             return self.constraint.measure(index, ctx) if self.constraint is not None else None
         zupt = self._zero_velocity(ctx)
-        if self.options.max_speed_mps is not None and _agrees(zupt, ctx):
+        if self.options.max_speed_mps is not None and agrees(zupt, ctx.covariance):
             rot = ctx.rotation_to_local
             pos = ctx.layout.slice(POSITION)
             self._agreed = (ctx.t, ctx.position_enu, rot.T @ ctx.covariance[pos, pos] @ rot)
@@ -788,7 +775,7 @@ class Zupt(Plugin):
         options = self.options
         if options.odometer_rest_mps is not None or options.max_speed_mps is not None:
             return None
-        if self._zupt_epoch_at(t) is None or _agrees(self._zero_velocity(ctx), ctx):
+        if self._zupt_epoch_at(t) is None or agrees(self._zero_velocity(ctx), ctx.covariance):
             return None
         return (
             "the standstill rests on the IMU's detector alone, and the filter's velocity"
@@ -821,7 +808,9 @@ class Zupt(Plugin):
         index = self._zupt_epoch_at(t)
         if index is None:
             return None
-        if not self.beyond_linearization(index, ctx) and _agrees(self._zero_velocity(ctx), ctx):
+        if not self.beyond_linearization(index, ctx) and agrees(
+            self._zero_velocity(ctx), ctx.covariance
+        ):
             return None  # the velocity is not what the filter lost
         level = self._rest_level.over(t - options.guard_s, t, ctx.c_b_n, ctx.accel_bias)
         if level is None:
