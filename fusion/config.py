@@ -439,6 +439,15 @@ class SmootherOptions(_Strict):
         1e6,
         "stored output rows beyond this (MB) spill to a temporary directory; up to 1 TB",
     )
+    significance_sigma: float = _within(
+        1.0,
+        0,
+        10,
+        "a window's smoothed track replaces its forward one only when the gain in squared"
+        " position error the smoother expects exceeds this many of its standard deviations, by"
+        " the smoother's own covariance (fusion.smoother.SmoothingGain); below it the"
+        " two tracks are a coin toss and the forward one is kept. 0 smooths every window",
+    )
 
 
 class ImuScreening(_Strict):

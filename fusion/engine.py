@@ -124,6 +124,11 @@ class RunResult:
     smoother_rejected: int = 0
     """Output epochs whose smoothed position the forward filter's statistics did not allow
     (:func:`fusion.smoother.plausible_correction`): they keep the forward estimate."""
+    smoother_windows: int = 0
+    """Smoothing windows closed (one per pass online, one for the whole recording)."""
+    smoother_unresolved_windows: int = 0
+    """Windows that kept their forward track: the smoother's expected gain was within its own
+    spread (:func:`fusion.smoother.SmoothingGain`, ``smoother.significance_sigma``)."""
     screening: ScreeningReport = field(default_factory=lambda: ScreeningReport(enabled=False))
     """Implausible samples rejected per stream and rule before the run (fusion.screening)."""
     rest_noise: RestNoise = field(default_factory=RestNoise)
@@ -704,6 +709,8 @@ class Engine:
             smoothed=smoothed,
             smoother_peak_steps=smoother.peak_steps if smoother is not None else 0,
             smoother_rejected=smoother.rejected if smoother is not None else 0,
+            smoother_windows=smoother.windows if smoother is not None else 0,
+            smoother_unresolved_windows=smoother.unresolved_windows if smoother is not None else 0,
             screening=self.screening,
             rest_noise=self.rest_noise,
             left_out=tuple(self.left_out.values()),
@@ -826,14 +833,6 @@ class Engine:
             qd = qd + coordinates.congruent(noise, velocity, position, -1.0)
         self._analysis.predict(phi, qd)
 
-    def _standard_at(
-        self, nav: NDArray[np.float64], x: NDArray[np.float64], p: NDArray[np.float64]
-    ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-        """``(T x, T P Tᵀ)`` at nominal state ``nav`` (the smoother's output epochs)."""
-        if self._coordinates is None:
-            return x, p
-        return self._coordinates.to_standard(x, p, *self._point(nav))
-
     def _position_covariance(self, bank: FilterBank, sins: Strapdown) -> NDArray[np.float64]:
         """The position error's covariance in local metres."""
         if self._analysis is not None:
@@ -877,7 +876,12 @@ class Engine:
         opts = self.config.smoother
         if opts.mode == "off":
             return None
-        to_standard = None if self._coordinates is None else self._standard_at
+        coordinates, dim = self._coordinates, bank.smoothing_dim
+        to_standard = (
+            None
+            if coordinates is None
+            else lambda nav: coordinates.transform(dim, *self._point(nav))
+        )
         reporters = [p for p in self.plugins if p.closes_windows] if opts.mode == "online" else []
         if opts.mode == "online" and not reporters:
             self._online_without_window_ends()
@@ -885,7 +889,9 @@ class Engine:
         def due(t: float) -> bool:  # without reporters: one window, the whole recording
             return any([p.window_end_due(t) for p in reporters])  # ask every one: each counts
 
-        return WindowedSmoother(bank.smoothing_dim, due, opts.memory_budget_mb, to_standard)
+        return WindowedSmoother(
+            bank.smoothing_dim, due, opts.memory_budget_mb, to_standard, opts.significance_sigma
+        )
 
     def _online_without_window_ends(self) -> None:
         """Online smoothing with no plugin to end its windows: a configuration error, unless

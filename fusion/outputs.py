@@ -89,6 +89,12 @@ def write_outputs(
         metrics["screening"] = result.screening.to_dict()
         metrics["imu_noise_at_rest"] = result.rest_noise.to_dict()
         metrics["left_out"] = {"plugins": list(result.left_out)}
+        if result.smoothed is not None:
+            metrics["smoother"] = {
+                "windows": result.smoother_windows,
+                "windows_kept_forward": result.smoother_unresolved_windows,
+                "epochs_rejected": result.smoother_rejected,
+            }
         if result.observability is not None:
             metrics["observability"] = result.observability.to_dict()
         write_metrics_json(metrics, files["metrics"])
@@ -206,6 +212,12 @@ def summary(result: RunResult, recording: Recording) -> str:
     actions = [e.action for e in result.faults]
     if result.config.filter.architecture == "federated" or actions:
         lines.append(f"faults     {_fault_counts(actions)} (faults.csv)")
+    if result.smoothed is not None:
+        lines.append(
+            f"smoother   {result.smoother_windows - result.smoother_unresolved_windows} of"
+            f" {result.smoother_windows} windows smoothed (the others' expected gain was within"
+            " its spread: forward kept)"
+        )
     if result.smoother_rejected:
         lines.append(
             f"smoother   {result.smoother_rejected} output epochs kept their forward estimate"

@@ -49,8 +49,16 @@ it, so that no window spans it (a window smoothed across an isolation returned a
 across an inconsistent pass a σ of centimetres where the forward pass had metres). And every
 smoothed position is checked against the forward one (:func:`plausible_correction`): a
 correction the forward statistics do not allow keeps the forward estimate, counted in
-:attr:`WindowedSmoother.rejected`; a smoothed track is then never worse than its forward one by
-more than the plausible corrections.
+:attr:`WindowedSmoother.rejected`.
+
+Where smoothing gains nothing one can tell. A window whose only news is weak (a pass with no
+surveyed point, an encoder's scale seen through the millimetres per second left at one stop)
+moves the track by little against what the smoother still does not know: by the model's own
+statistics the smoothed track is then as likely worse than the forward one as better. A window
+replaces its forward track only when its expected gain exceeds ``smoother.significance_sigma``
+standard deviations of that gain (:class:`SmoothingGain`, exact over the window's lag
+covariances); the others keep the forward estimates, counted in
+:attr:`WindowedSmoother.unresolved_windows`.
 
 Memory: a :class:`StepStore` keeps the rows of one smoothing window in chunks; chunks beyond a
 memory budget are ``.npy`` files in a temporary directory (spill to disk). Online smoothing (at
@@ -79,12 +87,9 @@ CORRECTION_PROBABILITY = 0.9999
 CORRECTION_THRESHOLD = float(chi2.ppf(CORRECTION_PROBABILITY, 3))
 """χ²₃ bound of a plausible smoothing correction (:func:`plausible_correction`)."""
 Rows = tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]
-ToStandard = Callable[
-    [NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]],
-    tuple[NDArray[np.float64], NDArray[np.float64]],
-]
-"""``(nav, x, P) → (x, P)`` in the standard error at the nominal state ``nav``, for a filter that
-keeps another error (:mod:`fusion.invariant_error`)."""
+ToStandard = Callable[[NDArray[np.float64]], NDArray[np.float64]]
+"""``nav → T``: the standard error is ``T x`` at the nominal state ``nav``, for a filter that keeps
+another error (:mod:`fusion.invariant_error`)."""
 FIELDS = ("offset", "gain", "covariance", "feedback")
 MATRICES = ("gain", "covariance")
 Segment = dict[str, NDArray[np.float64]]
@@ -240,9 +245,13 @@ def _solve_psd(a: NDArray[np.float64], b: NDArray[np.float64]) -> NDArray[np.flo
     return np.asarray(np.linalg.lstsq(a, b, rcond=None)[0], dtype=np.float64)
 
 
-def rts(store: StepStore) -> Iterator[tuple[int, NDArray[np.float64], NDArray[np.float64]]]:
+def rts(
+    store: StepStore,
+) -> Iterator[tuple[int, NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]]:
     """Smoothed errors d_j = ê_j − u_j of the fed-back state, and P_j^s, at the output epochs:
-    ``(j, d_j, P_j^s)``, last epoch first.
+    ``(j, d_j, P_j^s, G_j)``, last epoch first; ``G_j`` maps the next output epoch's smoothed
+    error (the window's last step's for the last epoch) to this one's, so that the smoothed
+    errors' cross-covariance is ``Cov(ε_j, ε_m) = G_j P_m^s`` for consecutive epochs j < m.
 
     The recursion starts at the window's last step (where the smoothed estimate is the filtered
     one) and walks the folded rows back to the first output epoch. Yielded one at a time, so a
@@ -255,7 +264,7 @@ def rts(store: StepStore) -> Iterator[tuple[int, NDArray[np.float64], NDArray[np
         e = row["offset"] + g @ e
         p = row["covariance"] + g @ p @ g.T
         p = 0.5 * (p + p.T)
-        yield j, e - row["feedback"], p
+        yield j, e - row["feedback"], p, g
 
 
 def plausible_correction(
@@ -288,6 +297,61 @@ def plausible_correction(
     return float(np.sum(along[keep] ** 2 / values[keep])) <= CORRECTION_THRESHOLD
 
 
+class SmoothingGain:
+    """What a window's smoothed positions gain over its forward ones, by the smoother's own
+    statistics, accumulated over the backward pass.
+
+    With ``d_j = x_s − x_f`` the position correction at output epoch j and ``ε_j`` the smoothed
+    error, the forward error is ``ε_j − d_j`` and the window's summed squared position error
+    changes by ``Δ = Σ_j (2 ε_jᵀ d_j − |d_j|²)``. Under the smoother's model ``ε`` is zero-mean
+    and independent of the data that fixed ``d``, so ``E[Δ] = −Σ_j |d_j|²`` (:attr:`expected`) and
+    ``Var Δ = 4 Var(Σ_j D_jᵀ ε_j)`` with ``D_j = T_jᵀ Sᵀ d_j`` (``S`` the position rows, ``T_j``
+    the conversion to the standard error). With the lag covariances ``Cov(ε_j, ε_m) = G_j P_m^s``
+    that variance is one backward recursion (:meth:`add`):
+
+        w_j = P_j^s D_j + G_j w_m,        Var = Σ_j D_jᵀ (P_j^s D_j + 2 G_j w_m)
+
+    Where the corrections are small against what the smoother still does not know, the two
+    tracks are a coin toss by the model's own account (a pass whose only news is the noise of
+    one stop, an encoder's scale seen through millimetres per second): :meth:`significant`.
+    """
+
+    def __init__(self, dim: int) -> None:
+        self.expected = 0.0
+        """The expected reduction of the summed squared position error, ``Σ_j |d_j|²``."""
+        self.variance = 0.0
+        """``Var(Σ_j D_jᵀ ε_j)``; Δ's standard deviation is twice its root."""
+        self._w = np.zeros(dim)
+
+    def skip(self, fold: NDArray[np.float64]) -> None:
+        """An epoch that keeps its forward position (``D_j = 0``): ``w_j = G_j w_m``."""
+        self._w = fold @ self._w
+
+    def add(
+        self,
+        correction: NDArray[np.float64],
+        covariance: NDArray[np.float64],
+        fold: NDArray[np.float64],
+        transform: NDArray[np.float64] | None,
+    ) -> None:
+        """Epoch j (walking backward): its position correction ``d_j`` (standard error), its
+        ``P_j^s`` and the folded gain ``G_j`` (:func:`rts`) in the filter's coordinates, and
+        ``T_j`` (``None``: the identity)."""
+        self.expected += float(correction @ correction)
+        weights = np.zeros(self._w.size)
+        weights[POSITION] = correction
+        if transform is not None:
+            weights = transform.T @ weights
+        later = fold @ self._w
+        own = covariance @ weights
+        self.variance += float(weights @ (own + 2.0 * later))
+        self._w = own + later
+
+    def significant(self, sigmas: float) -> bool:
+        """Whether the expected gain is at least ``sigmas`` standard deviations of ``Δ``."""
+        return self.expected >= sigmas * 2.0 * float(np.sqrt(max(self.variance, 0.0)))
+
+
 class WindowedSmoother:
     """Forward-pass bookkeeping for smoothing over windows that end at given times.
 
@@ -314,8 +378,10 @@ class WindowedSmoother:
         window_end_due: Callable[[float], bool],
         memory_budget_mb: float,
         to_standard: ToStandard | None = None,
+        significance_sigma: float = 0.0,
     ) -> None:
         self.dim = dim
+        self.significance_sigma = significance_sigma
         self.to_standard = to_standard
         self.window_end_due = window_end_due
         self.budget = memory_budget_mb
@@ -330,6 +396,10 @@ class WindowedSmoother:
         self.rejected = 0
         """Output epochs whose smoothed position failed :func:`plausible_correction` and kept
         the forward estimate."""
+        self.windows = 0
+        self.unresolved_windows = 0
+        """Windows whose smoothed track's gain was not :meth:`SmoothingGain.significant`: they
+        keep the forward estimates."""
 
     def step(
         self,
@@ -347,7 +417,8 @@ class WindowedSmoother:
             self._navs.append(nav_after)
             covariance = posterior[1]
             if self.to_standard is not None:
-                covariance = self.to_standard(nav_after, posterior[0], covariance)[1]
+                transform = self.to_standard(nav_after)
+                covariance = transform @ covariance @ transform.T
             self._forward.append(covariance[POSITION, POSITION])
         return self.close_window() if self.window_end_due(t) and self.store.n > 1 else None
 
@@ -361,20 +432,44 @@ class WindowedSmoother:
         navs = self._navs.take()
         covariances = self._forward.take().copy()
         if times.size:
-            for j, d, p in rts(store):
-                if self.to_standard is not None:
-                    d, p = self.to_standard(navs[j], d, p)
-                if not plausible_correction(d[POSITION], p[POSITION, POSITION], covariances[j]):
-                    self.rejected += 1
-                    continue
-                remove_errors(navs[j], d[0:3], d[3:6], d[6:9])
-                covariances[j] = p[POSITION, POSITION]
+            self.windows += 1
+            if not self._smooth(store, navs, covariances):
+                self.unresolved_windows += 1
         self.t.extend(times)
         self.nav.extend(navs)
         self.covariance.extend(covariances)
         store.close()
         self.store = StepStore(self.dim, self.budget)
         return times, navs, covariances
+
+    def _smooth(
+        self, store: StepStore, navs: NDArray[np.float64], covariances: NDArray[np.float64]
+    ) -> bool:
+        """Run the backward pass over ``store``; where its gain is significant, correct ``navs``
+        and replace ``covariances`` (forward on entry) in place. Whether it did."""
+        epochs, errors, smoothed = RowBuffer(), RowBuffer((9,)), RowBuffer((3, 3))
+        gain = SmoothingGain(self.dim)
+        for j, d, p, fold in rts(store):
+            transform = None if self.to_standard is None else self.to_standard(navs[j])
+            if transform is not None:
+                d, p_std = transform @ d, transform @ p @ transform.T
+            else:
+                p_std = p
+            if not plausible_correction(d[POSITION], p_std[POSITION, POSITION], covariances[j]):
+                self.rejected += 1
+                gain.skip(fold)
+                continue
+            gain.add(d[POSITION], p, fold, transform)
+            epochs.append(j)
+            errors.append(d[:9])
+            smoothed.append(p_std[POSITION, POSITION])
+        if not gain.significant(self.significance_sigma):
+            return False
+        index = epochs.take().astype(np.intp)
+        for j, dj in zip(index, errors.take(), strict=True):
+            remove_errors(navs[j], dj[0:3], dj[3:6], dj[6:9])
+        covariances[index] = smoothed.take()
+        return True
 
     def take_rows(self) -> Rows:
         """All smoothed rows, without a copy; the smoother's row buffers are left empty."""

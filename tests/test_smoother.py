@@ -14,7 +14,7 @@ from fusion.engine import Engine
 from fusion.fault_detection import ISOLATE
 from fusion.kalman import KalmanFilter
 from fusion.metrics import compute_metrics
-from fusion.smoother import StepStore, plausible_correction, rts
+from fusion.smoother import SmoothingGain, StepStore, plausible_correction, rts
 from tests.fault_support import clean_and_faulty, without_nlos_test
 
 CONFIGS = Path(__file__).resolve().parents[1] / "configs"
@@ -161,6 +161,128 @@ def test_online_smoothing_needs_a_plugin_that_reports_window_ends() -> None:
     )
     with pytest.raises(ConfigError, match=r"smoother\.mode"):
         Engine(config, make_recording(0, duration=20.0)).run()
+
+
+def _drift_system(dt: float = 1.0) -> tuple[np.ndarray, ...]:
+    """Three axes of velocity (0–2), an acceleration bias (3–5) and position (6–8): the
+    smoothed layout's velocity and position slots, a velocity sensor on every step."""
+    f = np.eye(9)
+    f[6:9, 0:3] = dt * np.eye(3)
+    f[0:3, 3:6] = dt * np.eye(3)
+    q = np.diag([1e-6] * 3 + [1e-8] * 3 + [1e-6] * 3)
+    h = np.hstack([np.eye(3), np.zeros((3, 6))])
+    p0 = np.diag([1e-4] * 3 + [1e-6] * 3 + [1e-2] * 3)
+    return f, q, h, p0
+
+
+def _filter_drift(
+    seed: int, n_steps: int, fix_sigma: float, output_every: int = 1
+) -> tuple[StepStore, np.ndarray, np.ndarray, np.ndarray]:
+    """Open-loop filter of :func:`_drift_system` (velocity σ 1 cm/s on every step, one position
+    fix at the last step): its store, the truth and the filtered estimates at the output epochs,
+    and every step's (F, Q, H, R) for a batch solution."""
+    f, q, h, p0 = _drift_system()
+    rng = np.random.default_rng(seed)
+    truth = rng.multivariate_normal(np.zeros(9), p0)
+    kf = KalmanFilter(np.zeros(9), p0)
+    store = StepStore(9, memory_budget_mb=512.0)
+    truths, filtered = [], []
+    for k in range(n_steps):
+        if k > 0:
+            truth = f @ truth + rng.multivariate_normal(np.zeros(9), q)
+            kf.predict(f, q)
+        prior = (kf.x.copy(), kf.P.copy())
+        rows, r = h, np.eye(3) * 1e-4
+        if k == n_steps - 1:
+            rows = np.vstack([h, np.hstack([np.zeros((3, 6)), np.eye(3)])])
+            r = np.diag([1e-4] * 3 + [fix_sigma**2] * 3)
+        z = rows @ truth + rng.multivariate_normal(np.zeros(len(r)), r)
+        kf.update(-z, rows, r)  # the error of a nominal held at zero: −truth
+        output = k % output_every == 0 or k == n_steps - 1
+        store.append(float(k), f, prior, (kf.x.copy(), kf.P.copy()), np.zeros(9), output=output)
+        if output:
+            truths.append(truth.copy())
+            filtered.append(kf.x.copy())
+    return store, np.array(truths), np.array(filtered), p0
+
+
+@pytest.mark.parametrize("output_every", [1, 4])
+@pytest.mark.parametrize("converted", [False, True])
+def test_smoothing_gain_variance_is_the_batch_solution_s(
+    output_every: int, converted: bool
+) -> None:
+    """The recursion of :class:`SmoothingGain` gives Var(Σ_j D_jᵀ ε_j) over a window's smoothed
+    errors: the same as the joint covariance of a batch least-squares solution of the whole
+    window (its information matrix inverted), with steps folded between output epochs and with
+    a conversion T_j per epoch."""
+    n = 24
+    f, q, h, p0 = _drift_system()
+    store, _, _, _ = _filter_drift(0, n, fix_sigma=0.05, output_every=output_every)
+    rng = np.random.default_rng(1)
+    info = np.zeros((9 * n, 9 * n))
+    block = [slice(9 * k, 9 * k + 9) for k in range(n)]
+    info[block[0], block[0]] += np.linalg.inv(p0)
+    qi = np.linalg.inv(q)
+    for k in range(n - 1):
+        a, b = block[k], block[k + 1]
+        info[a, a] += f.T @ qi @ f
+        info[b, b] += qi
+        info[a, b] -= f.T @ qi
+        info[b, a] -= qi @ f
+    for k in range(n):
+        rows, r = h, np.eye(3) * 1e-4
+        if k == n - 1:
+            rows = np.vstack([h, np.hstack([np.zeros((3, 6)), np.eye(3)])])
+            r = np.diag([1e-4] * 3 + [0.05**2] * 3)
+        info[block[k], block[k]] += rows.T @ np.linalg.inv(r) @ rows
+    joint = np.linalg.inv(info)
+
+    gain = SmoothingGain(9)
+    weights = np.zeros(9 * n)
+    outputs = [k for k in range(n) if k % output_every == 0 or k == n - 1]
+    for j, _, p_s, g in rts(store):
+        k = outputs[j]
+        np.testing.assert_allclose(p_s, joint[block[k], block[k]], rtol=1e-6, atol=1e-12)
+        correction = rng.normal(size=3)
+        transform = np.eye(9) + 0.3 * rng.normal(size=(9, 9)) if converted else None
+        gain.add(correction, p_s, g, transform)
+        w = np.zeros(9)
+        w[6:9] = correction
+        weights[block[k]] = w if transform is None else transform.T @ w
+    store.close()
+    assert gain.variance == pytest.approx(float(weights @ joint @ weights), rel=1e-6)
+
+
+def test_windows_the_smoother_calls_significant_are_better_than_forward() -> None:
+    """A correct smoother whose only news is a weak fix at a window's end is worse than its
+    forward track on a large share of windows (a coin toss by its own statistics). The windows
+    :meth:`SmoothingGain.significant` passes at 1σ are better in ≥ 84 % of cases by the model
+    (Φ(1)); 400 seeded windows, fixes of σ 3 cm–1 m against a forward position σ of ~10 cm."""
+    better_all, better_significant, significant = [], [], 0
+    for seed in range(400):
+        fix_sigma = (0.03, 0.3, 1.0)[seed % 3]
+        store, truths, filtered, _ = _filter_drift(seed, 40, fix_sigma)
+        gain = SmoothingGain(9)
+        smoothed = np.zeros_like(filtered)
+        for j, d, p_s, g in rts(store):
+            smoothed[j] = d
+            gain.add(filtered[j, 6:9] - d[6:9], p_s, g, None)
+        store.close()
+        errors = [np.sum((x[:, 6:9] + truths[:, 6:9]) ** 2) for x in (filtered, smoothed)]
+        better = bool(errors[1] < errors[0])
+        better_all.append(better)
+        if gain.significant(1.0):
+            significant += 1
+            better_significant.append(better)
+    worse_share = 1.0 - np.mean(better_all)
+    hit = np.mean(better_significant)
+    print(
+        f"smoothing every window: {worse_share:.2f} worse;"
+        f" {significant} significant, {hit:.2f} of them better"
+    )
+    assert worse_share > 0.2
+    assert significant > 60
+    assert hit > 0.84
 
 
 def test_plausible_correction_allows_what_the_forward_statistics_allow() -> None:
