@@ -128,7 +128,7 @@ class RunResult:
     """Smoothing windows closed (one per pass online, one for the whole recording)."""
     smoother_unresolved_windows: int = 0
     """Windows that kept their forward track: the smoother's expected gain was within its own
-    spread (:func:`fusion.smoother.SmoothingGain`, ``smoother.significance_sigma``)."""
+    spread (:class:`fusion.smoother.SmoothingGain`, ``smoother.significance_sigma``)."""
     screening: ScreeningReport = field(default_factory=lambda: ScreeningReport(enabled=False))
     """Implausible samples rejected per stream and rule before the run (fusion.screening)."""
     rest_noise: RestNoise = field(default_factory=RestNoise)

@@ -10,7 +10,7 @@ import pytest
 from filterpy.kalman import KalmanFilter as FilterpyKF
 
 from fusion.config import load_config
-from fusion.engine import Engine
+from fusion.engine import Engine, RunResult
 from fusion.fault_detection import ISOLATE
 from fusion.kalman import KalmanFilter
 from fusion.metrics import compute_metrics
@@ -129,6 +129,47 @@ def test_engine_smoothing_with_sparse_fixes_is_better_and_consistent() -> None:
     print(f"smoothed/forward horizontal RMS {ratio:.2f}, smoothed RMS(err/σ) {nees_rms:.2f}")
     assert ratio < 0.7
     assert 0.7 < nees_rms < 1.3
+
+
+def test_a_window_kept_forward_is_the_forward_track_and_is_reported(tmp_path: Path) -> None:
+    """Fixes every 20 s give the smoother a gain of about 100σ: the window is smoothed. One fix
+    at the start gives it 0.4σ: the window keeps its forward track (σ included), the summary
+    and metrics.json say so, and ``significance_sigma: 0`` smooths it all the same."""
+    import json
+
+    from test_engine import make_recording
+
+    from fusion.config import parse_config
+    from fusion.outputs import summary, write_outputs
+
+    def run(every: int, sigmas: float) -> RunResult:
+        rec = make_recording(0, duration=200.0)
+        assert rec.position is not None
+        keep = np.arange(rec.position.t.size) % every == 0
+        f = rec.position
+        rec = replace(rec, position=replace(f, t=f.t[keep], enu=f.enu[keep], sigma=f.sigma[keep]))
+        config = parse_config(
+            {
+                "name": "rts",
+                "plugins": [{"type": "position"}],
+                "smoother": {"mode": "whole", "significance_sigma": sigmas},
+            }
+        )
+        return Engine(config, rec).run()
+
+    for result, smoothed in ((run(20, 1.0), True), (run(200, 0.0), True), (run(200, 1.0), False)):
+        assert result.smoothed is not None
+        kept = result.smoother_unresolved_windows
+        assert (result.smoother_windows, kept) == (1, int(not smoothed))
+        same = np.array_equal(result.smoothed.position, result.solution.position) and (
+            np.array_equal(result.smoothed.sigma_position, result.solution.sigma_position)
+        )
+        assert same != smoothed
+    rec = make_recording(0, duration=200.0)
+    assert "smoother   0 of 1 windows smoothed" in summary(result, rec)
+    write_outputs(result, rec, tmp_path, plots=False)
+    reported = json.loads((tmp_path / "metrics.json").read_text())["smoother"]
+    assert reported == {"windows": 1, "windows_kept_forward": 1, "epochs_rejected": 0}
 
 
 def test_online_smoothing_without_a_face_end_smooths_the_recording_as_one_window(
