@@ -332,16 +332,17 @@ class SmoothingGain:
         correction: NDArray[np.float64],
         covariance: NDArray[np.float64],
         fold: NDArray[np.float64],
-        transform: NDArray[np.float64] | None,
+        position_rows: NDArray[np.float64] | None,
     ) -> None:
         """Epoch j (walking backward): its position correction ``d_j`` (standard error), its
         ``P_j^s`` and the folded gain ``G_j`` (:func:`rts`) in the filter's coordinates, and
-        ``T_j`` (``None``: the identity)."""
+        ``S T_j``, the position rows of the conversion (``None``: the identity)."""
         self.expected += float(correction @ correction)
-        weights = np.zeros(self._w.size)
-        weights[POSITION] = correction
-        if transform is not None:
-            weights = transform.T @ weights
+        if position_rows is None:
+            weights = np.zeros(self._w.size)
+            weights[POSITION] = correction
+        else:
+            weights = position_rows.T @ correction
         later = fold @ self._w
         own = covariance @ weights
         self.variance += float(weights @ (own + 2.0 * later))
@@ -416,10 +417,11 @@ class WindowedSmoother:
         if nav_after is not None:
             self._navs.append(nav_after)
             covariance = posterior[1]
-            if self.to_standard is not None:
-                transform = self.to_standard(nav_after)
-                covariance = transform @ covariance @ transform.T
-            self._forward.append(covariance[POSITION, POSITION])
+            if self.to_standard is None:
+                self._forward.append(covariance[POSITION, POSITION])
+            else:
+                rows = self.to_standard(nav_after)[POSITION]
+                self._forward.append(rows @ covariance @ rows.T)
         return self.close_window() if self.window_end_due(t) and self.store.n > 1 else None
 
     def close_window(self) -> Rows:
@@ -450,19 +452,18 @@ class WindowedSmoother:
         epochs, errors, smoothed = RowBuffer(), RowBuffer((9,)), RowBuffer((3, 3))
         gain = SmoothingGain(self.dim)
         for j, d, p, fold in rts(store):
-            transform = None if self.to_standard is None else self.to_standard(navs[j])
-            if transform is not None:
-                d, p_std = transform @ d, transform @ p @ transform.T
-            else:
-                p_std = p
-            if not plausible_correction(d[POSITION], p_std[POSITION, POSITION], covariances[j]):
+            rows = None if self.to_standard is None else self.to_standard(navs[j])[:9]
+            error = d[:9] if rows is None else rows @ d
+            position = rows[POSITION] if rows is not None else None
+            p_pos = p[POSITION, POSITION] if position is None else position @ p @ position.T
+            if not plausible_correction(error[POSITION], p_pos, covariances[j]):
                 self.rejected += 1
                 gain.skip(fold)
                 continue
-            gain.add(d[POSITION], p, fold, transform)
+            gain.add(error[POSITION], p, fold, position)
             epochs.append(j)
-            errors.append(d[:9])
-            smoothed.append(p_std[POSITION, POSITION])
+            errors.append(error)
+            smoothed.append(p_pos)
         if not gain.significant(self.significance_sigma):
             return False
         index = epochs.take().astype(np.intp)

@@ -286,7 +286,7 @@ def test_smoothing_gain_variance_is_the_batch_solution_s(
         np.testing.assert_allclose(p_s, joint[block[k], block[k]], rtol=1e-6, atol=1e-12)
         correction = rng.normal(size=3)
         transform = np.eye(9) + 0.3 * rng.normal(size=(9, 9)) if converted else None
-        gain.add(correction, p_s, g, transform)
+        gain.add(correction, p_s, g, None if transform is None else transform[6:9])
         w = np.zeros(9)
         w[6:9] = correction
         weights[block[k]] = w if transform is None else transform.T @ w
