@@ -168,6 +168,74 @@ def test_reference_speed_steady_window() -> None:
     assert slipping == pytest.approx(0.5, abs=0.0015)
 
 
+def _columns(speed: np.ndarray, sins_speed: np.ndarray, reading_sigma: float) -> np.ndarray:
+    """Column speed at every reading in turn of a 1-Hz encoder reading ``speed`` plus white
+    noise of ``reading_sigma``, the SINS travelling at ``sins_speed``."""
+    readings = speed + np.random.default_rng(1).normal(0.0, reading_sigma, speed.size)
+    t = np.arange(1.0, speed.size + 1.0)
+    reference = ReferenceSpeed(t, readings, 1.0, 10.0, 2.0)
+    along = np.array([0.0, 1.0, 0.0])
+    reference.travel = np.outer(np.cumsum(sins_speed), along)
+    return np.array([reference.at(i, 0.0, 0.0, along) for i in range(speed.size)])
+
+
+def test_reference_speed_steady_segment() -> None:
+    """A 1-Hz encoder (σ 16 mm/s) on a machine cutting at a steady 65 mm/s: the column is the
+    mean of the whole steady segment, whose moves from one reading to the next shrink as σ/n
+    (a sliding 10-s window's stay near σ√2/10 = 2.3 mm/s for as long as the machine runs, and
+    walked δk_D 3.5σ over a pass: fusion.aiding.reference_speed). When the machine doubles its
+    speed the segment starts again and the column follows within the windows' lag."""
+    sigma = 0.016
+    steady = np.full(1000, 0.065)
+    columns = _columns(
+        np.concatenate([steady, np.full(60, 0.13)]), np.r_[steady, [0.13] * 60], sigma
+    )
+    moves = np.diff(columns[500:1000])
+    assert np.sqrt(np.mean(moves**2)) < sigma / 100
+    assert columns[999] == pytest.approx(0.065, abs=3 * sigma / np.sqrt(900))
+    assert columns[-1] == pytest.approx(0.13, abs=3 * sigma / np.sqrt(10))
+
+
+def test_reference_speed_segment_follows_a_slow_change() -> None:
+    """A speed that creeps from 65 to 130 mm/s over 1000 s, too slowly for the one-second
+    window to tell: the segment starts again each time the steady window leaves it by 4σ of
+    their difference, and the column never lags the machine by more than that bound, the
+    windows' 12-s lag and their own noise."""
+    sigma = 0.016
+    speed = np.r_[np.full(200, 0.065), np.linspace(0.065, 0.13, 1000)]
+    columns = _columns(speed, speed, sigma)
+    lag = np.abs(columns[300:] - speed[300:])
+    assert lag.max() < 4 * sigma * np.sqrt(1 / 10) + 0.065 * 12 / 1000 + 3 * sigma / np.sqrt(10)
+
+
+def test_a_start_keeps_the_jitter_of_the_last_motion() -> None:
+    """A coarse encoder at 5 Hz (one count is 69 mm/s): 60 s hauling at about 100 mm/s, whose
+    readings alternate between one and two counts; 30 s standing; then a start whose first
+    readings are zero counts while the machine moves. At the start the speed row's noise floor
+    is the jitter of the last motion, not the standstill's electrical noise: with that, each
+    start's zero-count readings moved δk_D by −0.1 … −0.35 % on a random world. At the
+    standstill itself the floor is the standstill's, which holds the velocity at zero."""
+    count = 0.069
+    rng = np.random.default_rng(2)
+    hauling = count * np.where(np.arange(300) % 3 == 0, 2.0, 1.0)
+    speed = np.concatenate([hauling, np.zeros(150), [0.0, 0.0, count, 0.0, count]])
+    speed = speed + rng.normal(0.0, 0.002, speed.size)
+    t = np.round(np.arange(1, speed.size + 1) * 0.2, 10)
+    rec = Recording(
+        path=None,
+        meta=recording_meta(odometer={"rate_hz": 5.0}),
+        imu=still_imu(),
+        odometer=OdometerData(t=t, speed=speed),
+    )
+    plugin = Odometer("odometer", OdometerOptions(), rec)
+    hauled = float(np.sqrt(plugin.jitter[299]))
+    assert hauled > 0.02
+    assert plugin.at_rest[440] and np.sqrt(plugin.jitter[440]) < 0.004
+    start = 450 + np.flatnonzero(~plugin.at_rest[450:])  # the encoder knows from its first count
+    assert start.tolist() == [452, 453, 454] and abs(speed[453]) < 0.01
+    assert np.sqrt(plugin.jitter[start]) == pytest.approx(hauled, rel=0.2)
+
+
 def test_constraint_attitude_columns_wait_for_a_speed_clear_of_its_uncertainty() -> None:
     """Mode motion_constraint: the attitude columns are −C (v×) at the SINS velocity known as
     far as it is: on a slow machine (``observable_force``) shrunk by |v|² / (|v|² + 100 σ²), σ
