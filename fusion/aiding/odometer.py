@@ -15,9 +15,9 @@ and the true ``v^m = [0, s̃ (1 − δk_D), 0]``. The measurement (mode ``odomet
     H = [C_b^m C_n^b,  −C_b^m C_n^b (v^n×),  0,  0,  0,  …,  −C_b^m (v^b×),  [0, −v^m_y, 0]ᵀ]
 
 where the attitude and parameter columns take the vehicle velocity ``v^m = [0, s̄ / (1 + δk̂_D),
-0]`` (``v^n = C_b^n C_m^b v^m``) with s̄ a mean of readings *before* this one: of a 10-s window
-ending 2 s earlier while the speed is steady, of the last second while it changes, zero while
-the machine stands (``rest_guard_s`` of still readings, :func:`still_readings`;
+0]`` (``v^n = C_b^n C_m^b v^m``) with s̄ a mean of readings *before* this one: of the steady
+segment ending 2 s earlier while the speed is steady, of the last second while it changes,
+zero while the machine stands (``rest_guard_s`` of still readings, :func:`still_readings`;
 :mod:`fusion.aiding.reference_speed` says why). The
 SINS velocity in the attitude columns also carried the cutting vibration that is in z: with
 the encoder's 2–3 mm/s as R, yaw RMS(ε/σ) 2.4 against 2.1 at the reference (``longwall-200m``,
@@ -246,7 +246,8 @@ class OdometerOptions(PluginOptions):
     steady_window_s: float = Field(
         10.0,
         ge=0,
-        description="while the speed is steady they take the mean of this window (0: never)",
+        description="while the speed is steady they take the mean of the steady segment, which"
+        " starts with (and is tested against) a window of this length (0: never)",
     )
     steady_lag_s: float = Field(
         2.0, ge=0, description="the steady window ends this long before the reading"
