@@ -38,13 +38,14 @@ reading from the segment's start to the steady window's end. A sliding window's 
 one reading to the next by about σ̂ √2 / n, for as long as the machine runs, and each move turns
 the direction ``[v, 1]`` the filter takes for unobservable: the filter learns δk_D from the
 column's noise. A growing segment's mean moves by σ̂ / n, and the sum of its moves converges.
-With a 1-Hz encoder (σ̂ 16 mm/s, the machine cutting at 65 mm/s: the 10-s window's mean moved 4 %
-per reading) δk_D walked from 0 to −9.9 % at a σ of 2.8 % over a 4100-s pass, against a true
-+0.8 %, and the run ended 17 m off (sins_od_ckf, full-length random world 2); with the segment
-−0.6 % and 2.9 m horizontal RMS, with the true speed as the column 2.3 m. A segment starts with
-the steady window at a run's start, at the first reading of a change of speed or of a slip
-taken in, and again at the steady window's start when the window's mean leaves the segment's by
-more than 4σ of their difference (a slow change of speed; :meth:`ReferenceSpeed._segment_mean`).
+With a 1-Hz encoder (σ̂ 16 mm/s, the machine cutting at 65 mm/s: the 10-s window's mean moved
+3.5 % per reading) δk_D walked from 0 to −9.9 % at a σ of 2.8 % over a 4100-s pass, against a
+true +0.8 %, and the run ended 17 m off (sins_od_ckf, full-length random world 2); with the
+segment −0.2 % and 2.5 m horizontal RMS, with the true speed as the column 2.3 m. A segment
+starts with the steady window at a run's start, at the first reading of a change of speed or of
+a slip taken in, and again at the steady window's start when the window's mean leaves the
+segment's by more than 4σ of their difference (a slow change of speed;
+:meth:`ReferenceSpeed._segment_mean`).
 A column steadier than the machine's speed costs information the speed changes carry; one
 noisier than it invents information.
 
