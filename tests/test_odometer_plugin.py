@@ -209,7 +209,7 @@ def test_reference_speed_segment_follows_a_slow_change() -> None:
 
 
 def test_a_start_keeps_the_jitter_of_the_last_motion() -> None:
-    """A coarse encoder at 5 Hz (one count is 69 mm/s): 60 s hauling at about 100 mm/s, whose
+    """A coarse encoder at 5 Hz (one count is 69 mm/s): 60 s hauling at about 90 mm/s, whose
     readings alternate between one and two counts; 30 s standing; then a start whose first
     readings are zero counts while the machine moves. At the start the speed row's noise floor
     is the jitter of the last motion, not the standstill's electrical noise: with that, each
