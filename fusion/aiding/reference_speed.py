@@ -89,9 +89,15 @@ def reading_noise(
     differences, ``σ̂² = Σ (s_j − s_{j−1})² / (2 (n − 1))`` over the pairs inside the window
     (insensitive to a slow change of speed; it includes what vibration puts into the readings;
     0 for a window of fewer than two readings)."""
-    total_step2 = summed_steps(speed)
-    pairs = np.maximum(last - first - 1, 1)
-    steps = total_step2[last] - total_step2[np.minimum(first + 1, last)]
+    return window_noise(summed_steps(speed), first, last)
+
+
+def window_noise(
+    total_step2: NDArray[np.float64], first: NDArray[np.intp] | int, last: NDArray[np.intp] | int
+) -> NDArray[np.float64]:
+    """:func:`reading_noise` from the readings' :func:`summed_steps`."""
+    pairs = np.maximum(np.subtract(last, first) - 1, 1)
+    steps = total_step2[last] - total_step2[np.minimum(np.add(first, 1), last)]
     noise: NDArray[np.float64] = np.sqrt(steps / (2.0 * pairs))
     return noise
 
@@ -134,7 +140,7 @@ class ReferenceSpeed:
         )
         self._total = np.concatenate([[0.0], np.cumsum(speed)])
         self._steps = summed_steps(speed)
-        self.noise = reading_noise(speed, *self.steady)
+        self._noise = window_noise(self._steps, *self.steady)
         self.bound = self._bound() if steady_s > 0 else np.full(t.size, -1.0)
         self._segment: int | None = None  # first reading of the steady segment
         self._floor = 0  # no segment starts before the last slip onset
@@ -148,7 +154,7 @@ class ReferenceSpeed:
         n_steady = steady_last - steady_first
         usable = (n_short >= 1) & (n_steady >= 2)
         n_short, n_steady = np.maximum(n_short, 1), np.maximum(n_steady, 2)
-        bound = STEADY_SIGMAS * self.noise * np.sqrt(1.0 / n_short + 1.0 / n_steady)
+        bound = STEADY_SIGMAS * self._noise * np.sqrt(1.0 / n_short + 1.0 / n_steady)
         return np.where(usable, bound, -1.0)
 
     def start_run(self) -> None:
@@ -205,8 +211,7 @@ class ReferenceSpeed:
             return steady
         spread = 1.0 / (last - first) - 1.0 / (last - self._segment)
         segment = self._corrected_mean(self._segment, last, scale_error, slip)
-        steps = self._steps[last] - self._steps[self._segment + 1]
-        noise = math.sqrt(steps / (2.0 * (last - self._segment - 1))) / (1.0 + scale_error + slip)
+        noise = float(window_noise(self._steps, self._segment, last)) / (1.0 + scale_error + slip)
         if abs(segment - steady) > SEGMENT_SIGMAS * noise * math.sqrt(spread):
             self._segment = max(first, self._floor)
             return steady
