@@ -57,7 +57,8 @@ def euler_jacobian(euler: ArrayLike) -> NDArray[np.float64]:
     """``∂(roll, pitch, yaw)/∂φ`` (..., 3, 3) at roll, pitch, yaw (..., 3) in radians, for the
     misalignment φ of the computed n-frame, ``C̃_b^n = (I − φ×) C_b^n``
     (:mod:`fusion.error_model`): the covariance of the Euler angles is ``J P_φ Jᵀ``. Singular
-    at pitch ±90° (roll and yaw are then one angle)."""
+    at pitch ±90° (roll and yaw are then one angle); its pitch row, ``[-cos ψ, sin ψ, 0]``,
+    is finite there."""
     e = np.asarray(euler, dtype=float)
     c = dcm_from_euler(e[..., 0], e[..., 1], e[..., 2])
     jacobian = np.empty((*e.shape[:-1], 3, 3))
@@ -66,11 +67,32 @@ def euler_jacobian(euler: ArrayLike) -> NDArray[np.float64]:
         jacobian[..., 0, k] = (c[..., 2, 0] * dc[..., 2, 2] - c[..., 2, 2] * dc[..., 2, 0]) / (
             c[..., 2, 0] ** 2 + c[..., 2, 2] ** 2
         )
-        jacobian[..., 1, k] = dc[..., 2, 1] / np.sqrt(1.0 - c[..., 2, 1] ** 2)
         jacobian[..., 2, k] = (c[..., 1, 1] * dc[..., 0, 1] - c[..., 0, 1] * dc[..., 1, 1]) / (
             c[..., 0, 1] ** 2 + c[..., 1, 1] ** 2
         )
+    # ∂θ/∂φ = ∂C[2,1]/∂φ / cos θ, where ∂C[2,1]/∂φ = cos θ · [-cos ψ, sin ψ, 0]
+    jacobian[..., 1, 0] = -np.cos(e[..., 2])
+    jacobian[..., 1, 1] = np.sin(e[..., 2])
+    jacobian[..., 1, 2] = 0.0
     return jacobian
+
+
+def misalignment_jacobian(euler: ArrayLike) -> NDArray[np.float64]:
+    """``∂φ/∂(roll, pitch, yaw)`` (3, 3) at roll, pitch, yaw (3,) in radians: the misalignment φ
+    that small Euler-angle errors give, ``C̃_b^n = (I − φ×) C_b^n``. Its columns are the axes
+    the three elementary rotations of ``C_b^n = R_z(-ψ) · R_x(θ) · R_y(γ)`` turn about, in n,
+    with the sign of φ: ``-R_z(-ψ) R_x(θ) e_y``, ``-R_z(-ψ) e_x`` and ``e_z``. It is the inverse
+    of :func:`euler_jacobian` where that exists, and finite at pitch ±90°, where the roll's
+    and the yaw's columns are the same axis."""
+    _, pitch, yaw = np.asarray(euler, dtype=float)
+    return np.stack(
+        [
+            -dcm_from_euler(0.0, pitch, yaw)[:, 1],
+            -dcm_from_euler(0.0, 0.0, yaw)[:, 0],
+            np.array([0.0, 0.0, 1.0]),
+        ],
+        axis=-1,
+    )
 
 
 def quat_multiply(p: NDArray[np.float64], q: NDArray[np.float64]) -> NDArray[np.float64]:

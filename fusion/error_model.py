@@ -62,7 +62,7 @@ from numpy.typing import ArrayLike, NDArray
 from scipy.spatial.transform import Rotation
 
 from fusion import earth, kernels
-from fusion.attitude import dcm_from_quat, euler_jacobian
+from fusion.attitude import dcm_from_quat, misalignment_jacobian
 from fusion.strapdown import HGT, LAT, LON, Q0, VEL
 
 G0 = 9.80665
@@ -308,18 +308,28 @@ def misalignment_prior(
 ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """σ and correlation matrix of the misalignment φ (local-level E, N, U; rad) of an attitude
     whose roll, pitch and yaw ``euler`` (rad) are uncertain by ``sigma_euler`` (rad, 1-σ each,
-    independent): ``P_φ = J⁻¹ diag(σ²) J⁻ᵀ`` with ``J = ∂(roll, pitch, yaw)/∂φ``
-    (:func:`fusion.attitude.euler_jacobian`).
+    independent): ``P_φ = G diag(σ²) Gᵀ`` with ``G = ∂φ/∂(roll, pitch, yaw)``
+    (:func:`fusion.attitude.misalignment_jacobian`), no axis taken as known better than the
+    best-known angle: P_φ's eigenvalues are floored at ``min(σ)²``.
 
     Facing north a pitch error is a turn about east and a roll error one about north; facing
     south the same, mirrored; facing north-east each is a mix of both, and a roll known better
     than the pitch leaves φ_E and φ_N correlated. Taking meta.yaml's ``[roll, pitch, yaw]`` σ as
     ``[φ_E, φ_N, φ_U]`` gave a shearer facing south, pitch σ 1.3° and roll σ 0.4°, a φ_E σ of
     0.4° against a 3.9° pitch error: the odometer's first zero speeds were rejected at NIS 62
-    and the run ended 900 km off (docs/design/2026-12-02-initial-attitude-covariance.md)."""
-    jacobian = euler_jacobian(np.asarray(euler, dtype=float))
-    inverse = np.linalg.inv(jacobian)
-    covariance = inverse @ np.diag(np.square(np.asarray(sigma_euler, dtype=float))) @ inverse.T
+    and the run ended 900 km off (docs/design/2026-12-02-initial-attitude-covariance.md).
+
+    The floor is for a steep pitch. There roll and yaw turn about nearly one axis, and
+    independent Euler σ would claim the turn about the horizontal axis across the pitch axis
+    known far better than any angle (at pitch 60°, σ 0.3° / 0.3° / 1° give it 0.15°; at ±90°,
+    nothing): an artefact of the angles, not what an alignment knows. With those σ the floor
+    moves no σ by more than 7 % below 20° of pitch, and by less than 0.5 % below 5°."""
+    sigma_angles = np.asarray(sigma_euler, dtype=float)
+    jacobian = misalignment_jacobian(np.asarray(euler, dtype=float))
+    covariance = jacobian @ np.diag(np.square(sigma_angles)) @ jacobian.T
+    values, vectors = np.linalg.eigh(covariance)
+    floored = np.maximum(values, np.min(sigma_angles) ** 2)
+    covariance = (vectors * floored) @ vectors.T
     sigma = np.sqrt(np.diag(covariance))
     return sigma, covariance / np.outer(sigma, sigma)
 

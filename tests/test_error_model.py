@@ -4,7 +4,13 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from fusion.attitude import dcm_from_euler, quat_from_rotvec, quat_multiply
+from fusion.attitude import (
+    dcm_from_euler,
+    euler_jacobian,
+    misalignment_jacobian,
+    quat_from_rotvec,
+    quat_multiply,
+)
 from fusion.earth import LocalFrame
 from fusion.error_model import (
     ErrorModel,
@@ -128,3 +134,34 @@ def test_misalignment_prior_is_the_spread_of_the_euler_errors(yaw_deg: float) ->
     assert np.allclose(sample, expected, atol=0.03 * sigma.max() ** 2)
     if yaw_deg == 0.0:  # facing north: pitch about east, roll about north
         assert sd[:2] == pytest.approx(sigma[[1, 0]], rel=0.01)
+
+
+@pytest.mark.parametrize("pitch_deg", [-90.0, -60.0, 0.0, 35.0, 89.9, 90.0])
+def test_misalignment_prior_is_defined_at_every_pitch(pitch_deg: float) -> None:
+    """At a steep pitch, and at ±90° where roll and yaw are one angle, the prior is finite,
+    positive definite and takes no axis as known better than the best-known angle; away from
+    the lock it is the inverse Euler Jacobian's ``J⁻¹ Σ J⁻ᵀ`` but for that floor."""
+    euler = np.radians([2.0, pitch_deg, 130.0])
+    sigma = np.radians([0.3, 0.5, 1.0])
+    sd, correlation = misalignment_prior(euler, sigma)
+    covariance = correlation * np.outer(sd, sd)
+    assert np.all(np.isfinite(covariance))
+    assert np.linalg.eigvalsh(covariance).min() >= sigma.min() ** 2 * (1.0 - 1e-9)
+    if abs(pitch_deg) < 80.0:
+        inverse = np.linalg.inv(euler_jacobian(euler))
+        values, vectors = np.linalg.eigh(inverse @ np.diag(sigma**2) @ inverse.T)
+        floored = (vectors * np.maximum(values, sigma.min() ** 2)) @ vectors.T
+        np.testing.assert_allclose(covariance, floored, rtol=1e-9, atol=1e-15)
+    if pitch_deg == 0.0:  # level: the angles turn about three orthogonal axes, no floor
+        jacobian = misalignment_jacobian(euler)
+        expected = jacobian @ np.diag(sigma**2) @ jacobian.T
+        np.testing.assert_allclose(covariance, expected, rtol=1e-9, atol=1e-15)
+
+
+def test_misalignment_jacobian_inverts_the_euler_jacobian() -> None:
+    """``∂φ/∂euler`` is ``(∂euler/∂φ)⁻¹`` wherever the Euler angles are defined."""
+    rng = np.random.default_rng(3)
+    for euler in rng.uniform([-np.pi, -1.5, 0.0], [np.pi, 1.5, 2 * np.pi], (50, 3)):
+        np.testing.assert_allclose(
+            misalignment_jacobian(euler) @ euler_jacobian(euler), np.eye(3), atol=1e-9
+        )
