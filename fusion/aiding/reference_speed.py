@@ -140,7 +140,6 @@ class ReferenceSpeed:
         )
         self._total = np.concatenate([[0.0], np.cumsum(speed)])
         self._steps = summed_steps(speed)
-        self._noise = window_noise(self._steps, *self.steady)
         self.bound = self._bound() if steady_s > 0 else np.full(t.size, -1.0)
         self._segment: int | None = None  # first reading of the steady segment
         self._floor = 0  # no segment starts before the last slip onset
@@ -154,7 +153,8 @@ class ReferenceSpeed:
         n_steady = steady_last - steady_first
         usable = (n_short >= 1) & (n_steady >= 2)
         n_short, n_steady = np.maximum(n_short, 1), np.maximum(n_steady, 2)
-        bound = STEADY_SIGMAS * self._noise * np.sqrt(1.0 / n_short + 1.0 / n_steady)
+        noise = window_noise(self._steps, steady_first, steady_last)
+        bound = STEADY_SIGMAS * noise * np.sqrt(1.0 / n_short + 1.0 / n_steady)
         return np.where(usable, bound, -1.0)
 
     def start_run(self) -> None:
