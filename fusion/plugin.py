@@ -35,7 +35,7 @@ from pydantic import BaseModel, ConfigDict, ValidationError
 
 from fusion.config import FusionConfig
 from fusion.earth import LocalFrame
-from fusion.error_model import StateBlock, StateLayout
+from fusion.error_model import POSITION, StateBlock, StateLayout
 from fusion.innovations import InnovationLog
 from fusion.kalman import CorrelatedNoise
 from fusion.lock import Reacquisition
@@ -222,6 +222,16 @@ class MeasurementContext:
     def rotation_to_local(self) -> NDArray[np.float64]:
         """Rotation from the origin's ENU axes to the local ENU axes at the nominal position."""
         return self._local_point[1]
+
+    @property
+    def position_covariance_enu(self) -> NDArray[np.float64]:
+        """The position error's covariance in the origin's ENU axes (the filter keeps it in the
+        local ones): what a plugin records with :attr:`position_enu` as a place to go back to
+        (:meth:`Plugin.reacquire`)."""
+        rot = self.rotation_to_local
+        rows = self.layout.slice(POSITION)
+        covariance: NDArray[np.float64] = rot.T @ self.covariance[rows, rows] @ rot
+        return covariance
 
 
 class Plugin(ABC):

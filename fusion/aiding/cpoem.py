@@ -333,7 +333,7 @@ class Cpoem(Plugin):
             return None
         rot = ctx.rotation_to_local
         pos = ctx.layout.slice(POSITION)
-        covariance = rot.T @ ctx.covariance[pos, pos] @ rot
+        covariance = ctx.position_covariance_enu
         position = ctx.position_enu - rot.T @ ctx.x[pos]
         self.points[station] = StoredPoint(
             ctx.t, self.along_face(position), position, 0.5 * (covariance + covariance.T), True

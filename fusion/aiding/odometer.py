@@ -107,7 +107,7 @@ from fusion.aiding.reference_speed import ReferenceSpeed, reading_noise
 from fusion.aiding.zaru import ZeroAngularRate
 from fusion.attitude import dcm_from_euler, skew
 from fusion.encoder import reading_intervals
-from fusion.error_model import ATTITUDE, GYRO_BIAS, KNOWN_SIGMAS, POSITION, VELOCITY, StateBlock
+from fusion.error_model import ATTITUDE, GYRO_BIAS, KNOWN_SIGMAS, VELOCITY, StateBlock
 from fusion.lock import Reacquisition, RestLevel, agrees
 from fusion.plugin import Measurement, MeasurementContext, MissingStream, Plugin, PluginOptions
 from fusion.recording import Recording
@@ -469,9 +469,7 @@ class Odometer(Plugin):
         the zero angular rate at a standstill if configured."""
         velocity = self._velocity(index, ctx)
         if self.use_speed and (self._agreed is None or self._may_agree(index, velocity, ctx)):
-            rot = ctx.rotation_to_local
-            pos = ctx.layout.slice(POSITION)
-            self._agreed = (index, ctx.position_enu, rot.T @ ctx.covariance[pos, pos] @ rot)
+            self._agreed = (index, ctx.position_enu, ctx.position_covariance_enu)
         if not self.at_rest.size or not self.at_rest[index]:
             return velocity
         if self.options.slip_detection:

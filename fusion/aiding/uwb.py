@@ -823,9 +823,7 @@ def _tag_prior(
 ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """The prior of a window fit: the SINS's tag position ``tag`` (origin ENU) and the
     filter's position covariance turned to origin ENU axes."""
-    rot = ctx.rotation_to_local
-    pos = ctx.layout.slice(POSITION)
-    return tag, rot.T @ ctx.covariance[pos, pos] @ rot
+    return tag, ctx.position_covariance_enu
 
 
 def second_order_range(

@@ -704,9 +704,7 @@ class Zupt(Plugin):
             return self.constraint.measure(index, ctx) if self.constraint is not None else None
         zupt = self._zero_velocity(ctx)
         if self.options.max_speed_mps is not None and agrees(zupt, ctx.covariance):
-            rot = ctx.rotation_to_local
-            pos = ctx.layout.slice(POSITION)
-            self._agreed = (ctx.t, ctx.position_enu, rot.T @ ctx.covariance[pos, pos] @ rot)
+            self._agreed = (ctx.t, ctx.position_enu, ctx.position_covariance_enu)
         if self.zero_rate is None:
             return zupt
         t = self._epochs[index]
