@@ -170,6 +170,8 @@ class MeasurementContext:
     position_enu, rotation_to_local
         Nominal position in ENU metres about the recording origin, and the rotation from the
         origin's ENU axes to the local ones there (computed on first use).
+    position_covariance_enu
+        The position error's covariance turned to the origin's ENU axes.
     layout
         States of the filter being served.
     x
@@ -226,8 +228,8 @@ class MeasurementContext:
     @property
     def position_covariance_enu(self) -> NDArray[np.float64]:
         """The position error's covariance in the origin's ENU axes (the filter keeps it in the
-        local ones): what a plugin records with :attr:`position_enu` as a place to go back to
-        (:meth:`Plugin.reacquire`)."""
+        local ones), to go with :attr:`position_enu`: a place to go back to
+        (:meth:`Plugin.reacquire`), a stored point, a fit's prior."""
         rot = self.rotation_to_local
         rows = self.layout.slice(POSITION)
         covariance: NDArray[np.float64] = rot.T @ self.covariance[rows, rows] @ rot
