@@ -47,6 +47,7 @@ from fusion.encoder import combine_readings
 from fusion.error_model import (
     ACCEL_BIAS,
     GYRO_BIAS,
+    N_COMMON,
     POSITION,
     VELOCITY,
     ErrorModel,
@@ -927,7 +928,7 @@ class Engine:
         """Store one step; when it closes a window, hand the smoothed positions to the plugins."""
         dim = bank.smoothing_dim
         feedback = np.zeros(dim)
-        feedback[:15] = correction
+        feedback[:N_COMMON] = correction
         transition = np.eye(dim) if phi is None else bank.smoothing_transition(phi)
         window = smoother.step(t, transition, prior, posterior, feedback, nav_after)
         if window is not None:

@@ -101,7 +101,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from fusion.config import FederatedOptions
-from fusion.error_model import POSITION, StateLayout
+from fusion.error_model import N_COMMON, POSITION, StateLayout
 from fusion.fault_detection import ISOLATE, READMIT, FaultEvent, FaultMonitor
 from fusion.filter_bank import COMMON
 from fusion.jumps import Explanation
@@ -112,7 +112,6 @@ LAST_HOLDER = "kept in the fusion while no other local holds the SINS"
 """Appended to an isolation's reason when the local is the only one that holds the SINS: it
 stays a member (:meth:`FederatedFilter._members`) until another local holds it."""
 
-N_COMMON = 15
 OWN = slice(N_COMMON, None)
 
 

@@ -20,12 +20,12 @@ from typing import Protocol
 import numpy as np
 from numpy.typing import NDArray
 
-from fusion.error_model import POSITION, StateLayout
+from fusion.error_model import N_COMMON, POSITION, StateLayout
 from fusion.fault_detection import FaultEvent
 from fusion.kalman import KalmanFilter, UpdateResult
 from fusion.lock import inflation_variances
 
-COMMON = slice(0, 15)
+COMMON = slice(0, N_COMMON)
 
 
 class FilterBank(Protocol):
