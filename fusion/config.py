@@ -443,10 +443,11 @@ class SmootherOptions(_Strict):
         1.0,
         0,
         10,
-        "a window's smoothed track replaces its forward one only when the gain in squared"
-        " position error the smoother expects exceeds this many of its standard deviations, by"
-        " the smoother's own covariance (fusion.smoother.SmoothingGain); below it the"
-        " two tracks are a coin toss and the forward one is kept. 0 smooths every window",
+        "a window's smoothed horizontal track (and, on its own, its height) replaces the forward"
+        " one only when the gain in squared position error the smoother expects exceeds this"
+        " many of its standard deviations, by the smoother's own covariance"
+        " (fusion.smoother.SmoothingGain); below it the two tracks are a coin toss and the"
+        " forward one is kept. 0 smooths every window",
     )
 
 

@@ -128,8 +128,12 @@ class RunResult:
     smoother_windows: int = 0
     """Smoothing windows closed (one per pass online, one for the whole recording)."""
     smoother_unresolved_windows: int = 0
-    """Windows that kept their forward track: the smoother's expected gain was within its own
-    spread (:class:`fusion.smoother.SmoothingGain`, ``smoother.significance_sigma``)."""
+    """Windows that kept their whole forward track: the smoother's expected gain was within its
+    own spread (:class:`fusion.smoother.SmoothingGain`, ``smoother.significance_sigma``) for the
+    horizontal track and for the height alike."""
+    smoother_kept_forward: dict[str, int] = field(default_factory=dict)
+    """Per part of the track (:data:`fusion.smoother.BLOCKS`: horizontal, vertical), the windows
+    in which that part kept its forward estimates."""
     screening: ScreeningReport = field(default_factory=lambda: ScreeningReport(enabled=False))
     """Implausible samples rejected per stream and rule before the run (fusion.screening)."""
     rest_noise: RestNoise = field(default_factory=RestNoise)
@@ -712,6 +716,7 @@ class Engine:
             smoother_rejected=smoother.rejected if smoother is not None else 0,
             smoother_windows=smoother.windows if smoother is not None else 0,
             smoother_unresolved_windows=smoother.unresolved_windows if smoother is not None else 0,
+            smoother_kept_forward=dict(smoother.kept_forward) if smoother is not None else {},
             screening=self.screening,
             rest_noise=self.rest_noise,
             left_out=tuple(self.left_out.values()),

@@ -93,6 +93,7 @@ def write_outputs(
             metrics["smoother"] = {
                 "windows": result.smoother_windows,
                 "windows_kept_forward": result.smoother_unresolved_windows,
+                "kept_forward": result.smoother_kept_forward,
                 "epochs_rejected": result.smoother_rejected,
             }
         if result.observability is not None:
@@ -213,10 +214,11 @@ def summary(result: RunResult, recording: Recording) -> str:
     if result.config.filter.architecture == "federated" or actions:
         lines.append(f"faults     {_fault_counts(actions)} (faults.csv)")
     if result.smoothed is not None:
+        kept = result.smoother_kept_forward
+        parts = ", ".join(f"{name} in {result.smoother_windows - n}" for name, n in kept.items())
         lines.append(
-            f"smoother   {result.smoother_windows - result.smoother_unresolved_windows} of"
-            f" {result.smoother_windows} windows smoothed (the others' expected gain was within"
-            " its spread: forward kept)"
+            f"smoother   {result.smoother_windows} windows, smoothed: {parts} (elsewhere the"
+            " expected gain was within its spread: forward kept)"
         )
     if result.smoother_rejected:
         lines.append(

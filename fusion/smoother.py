@@ -54,11 +54,13 @@ correction the forward statistics do not allow keeps the forward estimate, count
 Where smoothing gains nothing one can tell. A window whose only news is weak (a pass with no
 surveyed point, an encoder's scale seen through the millimetres per second left at one stop)
 moves the track by little against what the smoother still does not know: by the model's own
-statistics the smoothed track is then as likely worse than the forward one as better. A window
-replaces its forward track only when its expected gain exceeds ``smoother.significance_sigma``
-standard deviations of that gain (:class:`SmoothingGain`, exact over the window's lag
-covariances); the others keep the forward estimates, counted in
-:attr:`WindowedSmoother.unresolved_windows`.
+statistics the smoothed track is then as likely worse than the forward one as better. A window's
+horizontal track and its height (:data:`BLOCKS`) each replace their forward ones only when their
+own expected gain exceeds ``smoother.significance_sigma`` standard deviations of that gain
+(:class:`SmoothingGain`, exact over the window's lag covariances); the others keep the forward
+estimates, counted in :attr:`WindowedSmoother.kept_forward`. The two are told apart because a
+height the smoother knows well (a floor, a stop) would otherwise carry a horizontal correction
+that is a coin toss.
 
 Memory: a :class:`StepStore` keeps the rows of one smoothing window in chunks; chunks beyond a
 memory budget are ``.npy`` files in a temporary directory (spill to disk). Online smoothing (at
@@ -71,6 +73,7 @@ import shutil
 import tempfile
 from array import array
 from collections.abc import Callable, Iterator
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -83,6 +86,26 @@ from fusion.strapdown import NAV_SIZE, remove_errors
 
 CHUNK = 2048
 POSITION = slice(6, 9)
+
+
+@dataclass(frozen=True)
+class Block:
+    """A part of the smoothed track that replaces its forward one on its own evidence."""
+
+    name: str
+    position_axes: tuple[int, ...]
+    """Its axes of the ENU position error: what its :class:`SmoothingGain` scores."""
+    errors: tuple[int, ...]
+    """The components of the error (velocity, attitude, position) it corrects."""
+
+
+BLOCKS = (
+    Block("horizontal", (0, 1), (0, 1, 3, 4, 5, 6, 7)),
+    Block("vertical", (2,), (2, 8)),
+)
+"""The horizontal track (with the attitude, whose heading moves it) and the height: two products
+(the face line and the horizon) whose smoothing gains are told apart, so that a confident gain in
+one never carries a loss in the other."""
 CORRECTION_PROBABILITY = 0.9999
 CORRECTION_THRESHOLD = float(chi2.ppf(CORRECTION_PROBABILITY, 3))
 """χ²₃ bound of a plausible smoothing correction (:func:`plausible_correction`)."""
@@ -316,7 +339,9 @@ class SmoothingGain:
     one stop, an encoder's scale seen through millimetres per second): :meth:`significant`.
     """
 
-    def __init__(self, dim: int) -> None:
+    def __init__(self, dim: int, axes: tuple[int, ...] = (0, 1, 2)) -> None:
+        self.axes = list(axes)
+        """The position axes (east, north, up) whose corrections it scores."""
         self.expected = 0.0
         """The expected reduction of the summed squared position error, ``Σ_j |d_j|²``."""
         self.variance = 0.0
@@ -336,7 +361,11 @@ class SmoothingGain:
     ) -> None:
         """Epoch j (walking backward): its position correction ``d_j`` (standard error), its
         ``P_j^s`` and the folded gain ``G_j`` (:func:`rts`) in the filter's coordinates, and
-        ``S T_j``, the position rows of the conversion (``None``: the identity)."""
+        ``S T_j``, the position rows of the conversion (``None``: the identity). Only the
+        correction's components on :attr:`axes` count."""
+        scored = np.zeros(3)
+        scored[self.axes] = correction[self.axes]
+        correction = scored
         self.expected += float(correction @ correction)
         if position_rows is None:
             weights = np.zeros(self._w.size)
@@ -399,8 +428,10 @@ class WindowedSmoother:
         the forward estimate."""
         self.windows = 0
         self.unresolved_windows = 0
-        """Windows whose smoothed track's gain was not :meth:`SmoothingGain.significant`: they
-        keep the forward estimates."""
+        """Windows in which no block's gain was :meth:`SmoothingGain.significant`: they keep
+        the forward estimates."""
+        self.kept_forward = {block.name: 0 for block in BLOCKS}
+        """Per :data:`BLOCKS` entry, the windows in which that block kept its forward track."""
 
     def step(
         self,
@@ -447,10 +478,11 @@ class WindowedSmoother:
     def _smooth(
         self, store: StepStore, navs: NDArray[np.float64], covariances: NDArray[np.float64]
     ) -> bool:
-        """Run the backward pass over ``store``; where its gain is significant, correct ``navs``
-        and replace ``covariances`` (forward on entry) in place. Whether it did."""
+        """Run the backward pass over ``store``; for each :data:`BLOCKS` entry whose gain is
+        significant, correct ``navs`` and replace its block of ``covariances`` (forward on
+        entry) in place. Whether any block was smoothed."""
         epochs, errors, smoothed = RowBuffer(), RowBuffer((9,)), RowBuffer((3, 3))
-        gain = SmoothingGain(self.dim)
+        gains = [SmoothingGain(self.dim, block.position_axes) for block in BLOCKS]
         for j, d, p, fold in rts(store):
             rows = None if self.to_standard is None else self.to_standard(navs[j])[:9]
             error = d[:9] if rows is None else rows @ d
@@ -458,18 +490,36 @@ class WindowedSmoother:
             p_pos = p[POSITION, POSITION] if position is None else position @ p @ position.T
             if not plausible_correction(error[POSITION], p_pos, covariances[j]):
                 self.rejected += 1
-                gain.skip(fold)
+                for gain in gains:
+                    gain.skip(fold)
                 continue
-            gain.add(error[POSITION], p, fold, position)
+            for gain in gains:
+                gain.add(error[POSITION], p, fold, position)
             epochs.append(j)
             errors.append(error)
             smoothed.append(p_pos)
-        if not gain.significant(self.significance_sigma):
+        chosen = [gain.significant(self.significance_sigma) for gain in gains]
+        for block, smooth in zip(BLOCKS, chosen, strict=True):
+            self.kept_forward[block.name] += not smooth
+        if not any(chosen):
             return False
         index = epochs.take().astype(np.intp)
-        for j, dj in zip(index, errors.take(), strict=True):
+        mask = np.zeros(9)
+        kept = np.zeros(3, dtype=bool)
+        for block, smooth in zip(BLOCKS, chosen, strict=True):
+            if smooth:
+                mask[list(block.errors)] = 1.0
+            else:
+                kept[list(block.position_axes)] = True
+        for j, dj in zip(index, errors.take() * mask, strict=True):
             remove_errors(navs[j], dj[0:3], dj[3:6], dj[6:9])
-        covariances[index] = smoothed.take()
+        mixed = smoothed.take()
+        # A kept block's error is ε_s − d with Cov(ε_s, d) = 0: its own block is the forward
+        # one, its cross-covariance with a smoothed block the smoothed one.
+        if kept.any():
+            part = np.ix_(np.arange(index.size), kept, kept)
+            mixed[part] = covariances[index][part]
+        covariances[index] = mixed
         return True
 
     def take_rows(self) -> Rows:

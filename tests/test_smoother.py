@@ -14,7 +14,14 @@ from fusion.engine import Engine, RunResult
 from fusion.fault_detection import ISOLATE
 from fusion.kalman import KalmanFilter
 from fusion.metrics import compute_metrics
-from fusion.smoother import SmoothingGain, StepStore, plausible_correction, rts
+from fusion.smoother import (
+    SmoothingGain,
+    StepStore,
+    WindowedSmoother,
+    plausible_correction,
+    rts,
+)
+from fusion.strapdown import NAV_SIZE
 from tests.fault_support import clean_and_faulty, without_nlos_test
 
 CONFIGS = Path(__file__).resolve().parents[1] / "configs"
@@ -166,10 +173,15 @@ def test_a_window_kept_forward_is_the_forward_track_and_is_reported(tmp_path: Pa
         )
         assert same != smoothed
     rec = make_recording(0, duration=200.0)
-    assert "smoother   0 of 1 windows smoothed" in summary(result, rec)
+    assert "smoother   1 windows, smoothed: horizontal in 0, vertical in 0" in summary(result, rec)
     write_outputs(result, rec, tmp_path, plots=False)
     reported = json.loads((tmp_path / "metrics.json").read_text())["smoother"]
-    assert reported == {"windows": 1, "windows_kept_forward": 1, "epochs_rejected": 0}
+    assert reported == {
+        "windows": 1,
+        "windows_kept_forward": 1,
+        "kept_forward": {"horizontal": 1, "vertical": 1},
+        "epochs_rejected": 0,
+    }
 
 
 def test_online_smoothing_without_a_face_end_smooths_the_recording_as_one_window(
@@ -217,30 +229,47 @@ def _drift_system(dt: float = 1.0) -> tuple[np.ndarray, ...]:
 
 
 def _filter_drift(
-    seed: int, n_steps: int, fix_sigma: float, output_every: int = 1
+    seed: int,
+    n_steps: int,
+    fix_sigma: float | tuple[float, float, float],
+    output_every: int = 1,
+    smoother: WindowedSmoother | None = None,
 ) -> tuple[StepStore, np.ndarray, np.ndarray, np.ndarray]:
     """Open-loop filter of :func:`_drift_system` (velocity σ 1 cm/s on every step, one position
-    fix at the last step): its store, the truth and the filtered estimates at the output epochs,
-    and every step's (F, Q, H, R) for a batch solution."""
+    fix of σ ``fix_sigma`` per axis at the last step): its store, the truth and the filtered
+    estimates at the output epochs, and P0. With ``smoother`` the filter runs closed-loop (its
+    estimate fed back at every step) and the steps go to the smoother instead, with a nominal
+    navigation state at rest at every output epoch."""
     f, q, h, p0 = _drift_system()
     rng = np.random.default_rng(seed)
     truth = rng.multivariate_normal(np.zeros(9), p0)
     kf = KalmanFilter(np.zeros(9), p0)
     store = StepStore(9, memory_budget_mb=512.0)
     truths, filtered = [], []
+    nav = np.zeros(NAV_SIZE)
+    nav[0], nav[7] = 1.0, 0.5
+    nominal = np.zeros(9)
     for k in range(n_steps):
         if k > 0:
             truth = f @ truth + rng.multivariate_normal(np.zeros(9), q)
+            nominal = f @ nominal
             kf.predict(f, q)
         prior = (kf.x.copy(), kf.P.copy())
         rows, r = h, np.eye(3) * 1e-4
         if k == n_steps - 1:
             rows = np.vstack([h, np.hstack([np.zeros((3, 6)), np.eye(3)])])
-            r = np.diag([1e-4] * 3 + [fix_sigma**2] * 3)
-        z = rows @ truth + rng.multivariate_normal(np.zeros(len(r)), r)
-        kf.update(-z, rows, r)  # the error of a nominal held at zero: −truth
+            r = np.diag([1e-4] * 3 + list(np.broadcast_to(fix_sigma, 3) ** 2))
+        z = rows @ (truth - nominal) + rng.multivariate_normal(np.zeros(len(r)), r)
+        kf.update(-z, rows, r)  # the nominal's error: nominal − truth
         output = k % output_every == 0 or k == n_steps - 1
-        store.append(float(k), f, prior, (kf.x.copy(), kf.P.copy()), np.zeros(9), output=output)
+        posterior = (kf.x.copy(), kf.P.copy())
+        if smoother is not None:
+            feedback = kf.x.copy()
+            smoother.step(float(k), f, prior, posterior, feedback, nav if output else None)
+            nominal = nominal - feedback
+            kf.x = np.zeros(9)
+        else:
+            store.append(float(k), f, prior, posterior, np.zeros(9), output=output)
         if output:
             truths.append(truth.copy())
             filtered.append(kf.x.copy())
@@ -249,13 +278,14 @@ def _filter_drift(
 
 @pytest.mark.parametrize("output_every", [1, 4])
 @pytest.mark.parametrize("converted", [False, True])
+@pytest.mark.parametrize("axes", [(0, 1, 2), (0, 1)])
 def test_smoothing_gain_variance_is_the_batch_solution_s(
-    output_every: int, converted: bool
+    output_every: int, converted: bool, axes: tuple[int, ...]
 ) -> None:
     """The recursion of :class:`SmoothingGain` gives Var(Σ_j D_jᵀ ε_j) over a window's smoothed
     errors: the same as the joint covariance of a batch least-squares solution of the whole
-    window (its information matrix inverted), with steps folded between output epochs and with
-    a conversion T_j per epoch."""
+    window (its information matrix inverted), with steps folded between output epochs, with
+    a conversion T_j per epoch, and on the horizontal axes alone."""
     n = 24
     f, q, h, p0 = _drift_system()
     store, _, _, _ = _filter_drift(0, n, fix_sigma=0.05, output_every=output_every)
@@ -278,8 +308,9 @@ def test_smoothing_gain_variance_is_the_batch_solution_s(
         info[block[k], block[k]] += rows.T @ np.linalg.inv(r) @ rows
     joint = np.linalg.inv(info)
 
-    gain = SmoothingGain(9)
+    gain = SmoothingGain(9, axes)
     weights = np.zeros(9 * n)
+    expected = 0.0
     outputs = [k for k in range(n) if k % output_every == 0 or k == n - 1]
     for j, _, p_s, g in rts(store):
         k = outputs[j]
@@ -288,10 +319,33 @@ def test_smoothing_gain_variance_is_the_batch_solution_s(
         transform = np.eye(9) + 0.3 * rng.normal(size=(9, 9)) if converted else None
         gain.add(correction, p_s, g, None if transform is None else transform[6:9])
         w = np.zeros(9)
-        w[6:9] = correction
+        w[[6 + a for a in axes]] = correction[list(axes)]
+        expected += float(w @ w)
         weights[block[k]] = w if transform is None else transform.T @ w
     store.close()
     assert gain.variance == pytest.approx(float(weights @ joint @ weights), rel=1e-6)
+    assert gain.expected == pytest.approx(expected, rel=1e-12)
+
+
+def test_a_window_smooths_the_height_without_the_horizontal_track_it_cannot_tell() -> None:
+    """A fix that knows the height to a millimetre and the horizontal position to 100 m (seed 4:
+    gains of 2.3 and 0.5 of their spreads): the height is smoothed, the horizontal track and
+    its covariance keep the forward ones."""
+    n = 40
+    smoother = WindowedSmoother(9, lambda t: t == n - 1, 512.0, significance_sigma=1.0)
+    _filter_drift(4, n, (100.0, 100.0, 0.001), smoother=smoother)
+    times, navs, covariances = smoother.take_rows()
+    forward = WindowedSmoother(9, lambda t: t == n - 1, 512.0, significance_sigma=1e9)
+    _filter_drift(4, n, (100.0, 100.0, 0.001), smoother=forward)
+    _, navs_f, covariances_f = forward.take_rows()
+    assert smoother.kept_forward == {"horizontal": 1, "vertical": 0}
+    assert (smoother.windows, smoother.unresolved_windows) == (1, 0)
+    horizontal = [0, 1, 2, 3, 4, 5, 7, 8]  # attitude, east and north velocity, latitude, longitude
+    np.testing.assert_array_equal(navs[:, horizontal], navs_f[:, horizontal])
+    assert np.all(navs[:-1, 9] != navs_f[:-1, 9])  # height
+    np.testing.assert_array_equal(covariances[:, :2, :2], covariances_f[:, :2, :2])
+    assert np.all(covariances[:-1, 2, 2] < covariances_f[:-1, 2, 2])
+    assert times.size == n
 
 
 def test_windows_the_smoother_calls_significant_are_better_than_forward() -> None:
