@@ -124,8 +124,17 @@ class LocalFrame:
         ) = None
 
     def to_enu(self, lat: ArrayLike, lon: ArrayLike, height: ArrayLike) -> NDArray[np.float64]:
-        """ENU metres (..., 3) of geodetic points (radians, metres)."""
-        return (geodetic_to_ecef(lat, lon, height) - self.r0_e) @ self.c_e_n.T
+        """ENU metres (..., 3) of geodetic points (radians, metres).
+
+        Element by element (no matrix product, whose kernels round a row differently with the
+        array's size): a point's coordinates are the same bits alone or in any array, so that
+        rows computed apart (a smoother's window, the whole forward track) compare exactly."""
+        d = geodetic_to_ecef(lat, lon, height) - self.r0_e
+        c = self.c_e_n
+        return np.stack(
+            [d[..., 0] * c[i, 0] + d[..., 1] * c[i, 1] + d[..., 2] * c[i, 2] for i in range(3)],
+            axis=-1,
+        )
 
     def point(
         self, lat: float, lon: float, height: float

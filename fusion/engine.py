@@ -92,7 +92,7 @@ from fusion.plugin import (
 from fusion.recording import ImuSpec, InitialSigma, Recording, check_recording
 from fusion.rows import RowBuffer
 from fusion.screening import STREAMS, ScreeningReport, screen_recording
-from fusion.smoother import WindowedSmoother
+from fusion.smoother import Rows, WindowedSmoother
 from fusion.solution import Solution
 from fusion.state_history import StateHistory, StateRecorder
 from fusion.strapdown import HGT, LAT, LON, NAV_SIZE, Q0, VEL, NavState, Strapdown
@@ -695,7 +695,8 @@ class Engine:
             if progress is not None and (i // report_every) != (j // report_every):
                 progress(j / n_events)
             i = j
-        solution = self._solution(out_t.take(), out_nav.take(), out_cov.take())
+        navs = out_nav.take()
+        solution = self._solution(out_t.take(), navs, self._positions(navs), out_cov.take())
         smoothed = None
         if smoother is not None:
             smoother.close_window()
@@ -896,7 +897,12 @@ class Engine:
             return any([p.window_end_due(t) for p in reporters])  # ask every one: each counts
 
         return WindowedSmoother(
-            bank.smoothing_dim, due, opts.memory_budget_mb, to_standard, opts.significance_sigma
+            bank.smoothing_dim,
+            due,
+            opts.memory_budget_mb,
+            self._positions,
+            to_standard,
+            opts.significance_sigma,
         )
 
     def _online_without_window_ends(self) -> None:
@@ -939,11 +945,10 @@ class Engine:
         if window is not None:
             self._hand_smoothed(window)
 
-    def _hand_smoothed(self, window: tuple[NDArray[np.float64], ...]) -> None:
+    def _hand_smoothed(self, window: Rows) -> None:
         """Hand the smoothed positions of a window just closed to the plugins."""
-        t_s, nav_s, cov_s = window
+        t_s, _, enu, cov_s = window
         if t_s.size:
-            enu = self.frame.to_enu(nav_s[:, LAT], nav_s[:, LON], nav_s[:, HGT])
             for plugin in self.plugins:
                 plugin.receive_smoothed(t_s, enu, cov_s)
 
@@ -1402,12 +1407,20 @@ class Engine:
                 src, stored.columns + offset, self._filter_rows(stored.h, None, context)
             )
 
+    def _positions(self, nav: NDArray[np.float64]) -> NDArray[np.float64]:
+        """Output (origin ENU) positions of packed navigation states (n, NAV_SIZE)."""
+        return self.frame.to_enu(nav[:, LAT], nav[:, LON], nav[:, HGT])
+
+    @staticmethod
     def _solution(
-        self, t: NDArray[np.float64], nav: NDArray[np.float64], cov: NDArray[np.float64]
+        t: NDArray[np.float64],
+        nav: NDArray[np.float64],
+        position: NDArray[np.float64],
+        cov: NDArray[np.float64],
     ) -> Solution:
         return Solution(
             t=t,
-            position=self.frame.to_enu(nav[:, LAT], nav[:, LON], nav[:, HGT]),
+            position=position,
             velocity=nav[:, VEL : VEL + 3].copy(),
             attitude=attitude.euler_from_quat(nav[:, Q0 : Q0 + 4]),
             sigma_position=np.sqrt(np.diagonal(cov, axis1=1, axis2=2)),

@@ -60,7 +60,9 @@ own expected gain exceeds ``smoother.significance_sigma`` standard deviations of
 (:class:`SmoothingGain`, exact over the window's lag covariances); the others keep the forward
 estimates, counted in :attr:`WindowedSmoother.kept_forward`. The two are told apart because a
 height the smoother knows well (a floor, a stop) would otherwise carry a horizontal correction
-that is a coin toss.
+that is a coin toss. They are the output frame's axes (the origin's east-north plane and its
+up): a kept block's output coordinates are the forward ones exactly. (A height correction along
+the local vertical, a distance d from the origin, would move them by Δh·d/R⊕.)
 
 Memory: a :class:`StepStore` keeps the rows of one smoothing window in chunks; chunks beyond a
 memory budget are ``.npy`` files in a temporary directory (spill to disk). Online smoothing (at
@@ -109,7 +111,12 @@ one never carries a loss in the other."""
 CORRECTION_PROBABILITY = 0.9999
 CORRECTION_THRESHOLD = float(chi2.ppf(CORRECTION_PROBABILITY, 3))
 """χ²₃ bound of a plausible smoothing correction (:func:`plausible_correction`)."""
-Rows = tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]
+Rows = tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]
+"""A window's or a run's output rows: times, navigation states, output positions, position
+covariances."""
+ToOutput = Callable[[NDArray[np.float64]], NDArray[np.float64]]
+"""``navs (k, NAV_SIZE) → positions (k, 3)`` in the output frame, a point's bits independent of
+the rows beside it (:meth:`fusion.earth.LocalFrame.to_enu`)."""
 ToStandard = Callable[[NDArray[np.float64]], NDArray[np.float64]]
 """``nav → T``: the standard error is ``T x`` at the nominal state ``nav``, for a filter that keeps
 another error (:mod:`fusion.invariant_error`)."""
@@ -397,6 +404,8 @@ class WindowedSmoother:
         Called with each step's time (after the step is stored): whether a window closes there.
     memory_budget_mb
         Per-window in-memory budget before spilling to disk.
+    to_output
+        The output positions of navigation states: where the kept blocks are held.
     to_standard
         Where the filter's error is not the standard one: its conversion at an output epoch's
         nominal state (the recursion runs in the filter's own coordinates, as it stored them).
@@ -407,10 +416,12 @@ class WindowedSmoother:
         dim: int,
         window_end_due: Callable[[float], bool],
         memory_budget_mb: float,
+        to_output: ToOutput,
         to_standard: ToStandard | None = None,
         significance_sigma: float = 0.0,
     ) -> None:
         self.dim = dim
+        self.to_output = to_output
         self.significance_sigma = significance_sigma
         self.to_standard = to_standard
         self.window_end_due = window_end_due
@@ -419,6 +430,7 @@ class WindowedSmoother:
         self._navs = RowBuffer((NAV_SIZE,))
         self.t = RowBuffer()
         self.nav = RowBuffer((NAV_SIZE,))
+        self.position = RowBuffer((3,))
         self.covariance = RowBuffer((3, 3))
         self._forward = RowBuffer((3, 3))
         self.peak_steps = 0
@@ -457,30 +469,36 @@ class WindowedSmoother:
 
     def close_window(self) -> Rows:
         """Smooth the stored window, keep its output rows, start an empty window; return the
-        window's rows (times, smoothed navigation states, position covariances)."""
+        window's :data:`Rows`."""
         store = self.store
         self.peak_steps = max(self.peak_steps, store.n)
         self.spilled |= store.spilled
         times = np.array(store.t)
         navs = self._navs.take()
+        positions = self.to_output(navs)
         covariances = self._forward.take().copy()
         if times.size:
             self.windows += 1
-            if not self._smooth(store, navs, covariances):
+            if not self._smooth(store, navs, positions, covariances):
                 self.unresolved_windows += 1
         self.t.extend(times)
         self.nav.extend(navs)
+        self.position.extend(positions)
         self.covariance.extend(covariances)
         store.close()
         self.store = StepStore(self.dim, self.budget)
-        return times, navs, covariances
+        return times, navs, positions, covariances
 
     def _smooth(
-        self, store: StepStore, navs: NDArray[np.float64], covariances: NDArray[np.float64]
+        self,
+        store: StepStore,
+        navs: NDArray[np.float64],
+        positions: NDArray[np.float64],
+        covariances: NDArray[np.float64],
     ) -> bool:
         """Run the backward pass over ``store``; for each :data:`BLOCKS` entry whose gain is
-        significant, correct ``navs`` and replace its block of ``covariances`` (forward on
-        entry) in place. Whether any block was smoothed."""
+        significant, correct ``navs``, replace its axes of ``positions`` and its block of
+        ``covariances`` (all forward on entry) in place. Whether any block was smoothed."""
         epochs, errors, smoothed = RowBuffer(), RowBuffer((9,)), RowBuffer((3, 3))
         gains = [SmoothingGain(self.dim, block.position_axes) for block in BLOCKS]
         for j, d, p, fold in rts(store):
@@ -513,6 +531,7 @@ class WindowedSmoother:
                 kept[list(block.position_axes)] = True
         for j, dj in zip(index, errors.take() * mask, strict=True):
             remove_errors(navs[j], dj[0:3], dj[3:6], dj[6:9])
+        positions[np.ix_(index, ~kept)] = self.to_output(navs[index])[:, ~kept]
         mixed = smoothed.take()
         # A kept block's error is ε_s − d with Cov(ε_s, d) = 0: its own block is the forward
         # one, its cross-covariance with a smoothed block the smoothed one.
@@ -524,4 +543,4 @@ class WindowedSmoother:
 
     def take_rows(self) -> Rows:
         """All smoothed rows, without a copy; the smoother's row buffers are left empty."""
-        return self.t.take(), self.nav.take(), self.covariance.take()
+        return self.t.take(), self.nav.take(), self.position.take(), self.covariance.take()

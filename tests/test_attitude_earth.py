@@ -93,6 +93,24 @@ def test_enu_round_trip_and_axes() -> None:
     assert lat1 - frame.lat0 == pytest.approx(100.0 / (rm + frame.height0), rel=1e-6)
 
 
+def test_a_point_s_enu_bits_do_not_depend_on_the_array_it_is_in() -> None:
+    """The smoother holds a kept block at the forward coordinates computed over its window;
+    the forward track computes them over the whole run: the same bits either way (a matrix
+    product rounded single points differently from rows of a long array)."""
+    frame = earth.LocalFrame(35.4, 116.6, -650.0)
+    rng = np.random.default_rng(0)
+    n = 20_011
+    lat = frame.lat0 + rng.normal(0.0, 2e-4, n)
+    lon = frame.lon0 + rng.normal(0.0, 2e-4, n)
+    height = frame.height0 + rng.normal(0.0, 10.0, n)
+    whole = frame.to_enu(lat, lon, height)
+    for start, stop in [(0, 1), (3, 10), (17, 4099), (999, 1000), (5, n)]:
+        part = slice(start, stop)
+        np.testing.assert_array_equal(frame.to_enu(lat[part], lon[part], height[part]), whole[part])
+    for i in range(0, n, 997):
+        np.testing.assert_array_equal(frame.to_enu(lat[i], lon[i], height[i]), whole[i])
+
+
 def test_point_memo_matches_the_array_forms_and_hands_out_copies() -> None:
     frame = earth.LocalFrame(35.4, 116.6, -650.0)
     lat, lon, height = np.deg2rad(35.4005), np.deg2rad(116.6007), -648.0

@@ -10,6 +10,7 @@ import pytest
 from filterpy.kalman import KalmanFilter as FilterpyKF
 
 from fusion.config import load_config
+from fusion.earth import LocalFrame
 from fusion.engine import Engine, RunResult
 from fusion.fault_detection import ISOLATE
 from fusion.kalman import KalmanFilter
@@ -21,7 +22,7 @@ from fusion.smoother import (
     plausible_correction,
     rts,
 )
-from fusion.strapdown import NAV_SIZE
+from fusion.strapdown import HGT, LAT, LON, NAV_SIZE
 from tests.fault_support import clean_and_faulty, without_nlos_test
 
 CONFIGS = Path(__file__).resolve().parents[1] / "configs"
@@ -329,20 +330,30 @@ def test_smoothing_gain_variance_is_the_batch_solution_s(
 
 def test_a_window_smooths_the_height_without_the_horizontal_track_it_cannot_tell() -> None:
     """A fix that knows the height to a millimetre and the horizontal position to 100 m (seed 4:
-    gains of 2.3 and 0.5 of their spreads): the height is smoothed, the horizontal track and
-    its covariance keep the forward ones."""
+    gains of 2.3 and 0.5 of their spreads): the height is smoothed; the horizontal output
+    coordinates and their covariance keep the forward ones exactly, about an origin more than a
+    kilometre away (where the local vertical leans off the origin's by 2·10⁻⁴ rad)."""
     n = 40
-    smoother = WindowedSmoother(9, lambda t: t == n - 1, 512.0, significance_sigma=1.0)
+    frame = LocalFrame(np.degrees(0.5) - 0.01, -0.01, 0.0)
+
+    def to_output(navs: np.ndarray) -> np.ndarray:
+        return frame.to_enu(navs[:, LAT], navs[:, LON], navs[:, HGT])
+
+    smoother = WindowedSmoother(9, lambda t: t == n - 1, 512.0, to_output, significance_sigma=1.0)
     _filter_drift(4, n, (100.0, 100.0, 0.001), smoother=smoother)
-    times, navs, covariances = smoother.take_rows()
-    forward = WindowedSmoother(9, lambda t: t == n - 1, 512.0, significance_sigma=1e9)
+    times, navs, positions, covariances = smoother.take_rows()
+    forward = WindowedSmoother(9, lambda t: t == n - 1, 512.0, to_output, significance_sigma=1e9)
     _filter_drift(4, n, (100.0, 100.0, 0.001), smoother=forward)
-    _, navs_f, covariances_f = forward.take_rows()
+    _, navs_f, positions_f, covariances_f = forward.take_rows()
     assert smoother.kept_forward == {"horizontal": 1, "vertical": 0}
     assert (smoother.windows, smoother.unresolved_windows) == (1, 0)
-    horizontal = [0, 1, 2, 3, 4, 5, 7, 8]  # attitude, east and north velocity, latitude, longitude
+    horizontal = [0, 1, 2, 3, 4, 5, LAT, LON]  # attitude, east and north velocity, lat, lon
     np.testing.assert_array_equal(navs[:, horizontal], navs_f[:, horizontal])
-    assert np.all(navs[:-1, 9] != navs_f[:-1, 9])  # height
+    np.testing.assert_array_equal(positions[:, :2], positions_f[:, :2])
+    np.testing.assert_array_equal(positions_f, to_output(navs_f))
+    np.testing.assert_array_equal(positions[:, 2], to_output(navs)[:, 2])
+    assert np.all(positions[:-1, 2] != positions_f[:-1, 2])  # height
+    assert np.any(to_output(navs)[:, :2] != positions_f[:, :2])  # what the tilt would have done
     np.testing.assert_array_equal(covariances[:, :2, :2], covariances_f[:, :2, :2])
     assert np.all(covariances[:-1, 2, 2] < covariances_f[:-1, 2, 2])
     assert times.size == n
