@@ -5,8 +5,8 @@
 * :func:`plot_error_envelope` — error per axis against time with ±3σ (``fusion.plots``);
 * :func:`plot_fault_timeline` — injected fault windows against each method's isolations
   (federated) and χ²-gate rejections (centralized), with the horizontal error below;
-* :func:`plot_headline` — bar chart of a table's headline column, mean ± std, the seed paper's
-  figure as a star.
+* :func:`plot_headline` — bar chart of a table's headline column (mean ± std, or the column's
+  own aggregate), the seed paper's figure as a star.
 """
 
 from __future__ import annotations
@@ -130,10 +130,13 @@ def plot_headline(table: Table, path: Path) -> Path | None:
     labels = [r.label for r in spec.rows]
     means = [c.mean if c.n else math.nan for c in cells]
     stds = [c.std if c.n > 1 else 0.0 for c in cells]
+    agg = columns[0].agg
+    label = "ours, mean ± std" if agg == "mean" else f"ours, {agg} over the runs"
+    errors = stds if agg == "mean" else None
     fig = Figure(figsize=(max(6.0, 0.55 * len(labels) + 2.0), 4.8))
     ax = fig.subplots()
     x = np.arange(len(labels))
-    ax.bar(x, means, yerr=stds, color="C0", alpha=0.8, capsize=3, label="ours, mean ± std")
+    ax.bar(x, means, yerr=errors, color="C0", alpha=0.8, capsize=3, label=label)
     paper = [(i, c.paper) for i, c in enumerate(cells) if c.paper is not None]
     if paper:
         ax.plot([i for i, _ in paper], [v for _, v in paper], "k*", ms=11, label="seed paper")
