@@ -129,10 +129,9 @@ def plot_headline(table: Table, path: Path) -> Path | None:
         return None
     labels = [r.label for r in spec.rows]
     means = [c.mean if c.n else math.nan for c in cells]
-    stds = [c.std if c.n > 1 else 0.0 for c in cells]
-    agg = columns[0].agg
+    agg = columns[0].agg  # another aggregate than the mean has no spread (build_table)
+    errors = [c.std if c.n > 1 else 0.0 for c in cells] if agg == "mean" else None
     label = "ours, mean ± std" if agg == "mean" else f"ours, {agg} over the runs"
-    errors = stds if agg == "mean" else None
     fig = Figure(figsize=(max(6.0, 0.55 * len(labels) + 2.0), 4.8))
     ax = fig.subplots()
     x = np.arange(len(labels))
