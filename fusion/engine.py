@@ -46,6 +46,8 @@ from fusion.earth import LocalFrame
 from fusion.encoder import combine_readings
 from fusion.error_model import (
     ACCEL_BIAS,
+    ATTITUDE,
+    COMMON_BLOCKS,
     GYRO_BIAS,
     N_COMMON,
     POSITION,
@@ -777,7 +779,12 @@ class Engine:
         error (``T dx`` with ``filter.invariant_error``)."""
         if self._coordinates is not None:
             dx = self._coordinates.apply(dx, *self._point(sins.nav))
-        sins.correct(dx[0:3], dx[3:6], dx[6:9], dx[9:12], dx[12:15])
+        sins.correct(*(dx[self.layout.slice(block)] for block in COMMON_BLOCKS))
+
+    def _indices(self, block: str) -> NDArray[np.intp]:
+        """The state indices of the common ``block`` in the layout."""
+        span = self.layout.slice(block)
+        return np.arange(span.start, span.stop)
 
     def _point(self, nav: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         """ENU velocity and ENU position about the origin of the packed navigation state
@@ -1293,15 +1300,16 @@ class Engine:
         from the fix at a σ of a few hundred metres."""
         rot = ctx.rotation_to_local
         moved = float(np.linalg.norm(error))
-        velocity_error, tilt, states = np.zeros(3), np.zeros(3), np.r_[6:9]
+        v, a, p = (self._indices(block) for block in (VELOCITY, ATTITUDE, POSITION))
+        velocity_error, tilt, states = np.zeros(3), np.zeros(3), p
         level = fix.level
         if velocity or level is not None:
             velocity_error = ctx.velocity - rot @ fix.velocity_enu
-            states = np.r_[0:3, 6:9]
+            states = np.r_[v, p]
             blocks = [rot @ fix.velocity_covariance @ rot.T, covariance]
             if level is not None:
                 tilt = level.attitude_error
-                states = np.r_[0:5, 6:9]
+                states = np.r_[v, a[:2], p]
                 blocks.insert(1, level.variance * np.eye(2))
             covariance = scipy.linalg.block_diag(*blocks)
         self._restart(sins, bank, ctx, states, covariance, velocity_error, tilt, error)
