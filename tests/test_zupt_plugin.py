@@ -300,7 +300,7 @@ def test_a_standstill_whose_zarus_contradict_the_vertical_gyro_bias_widens_it(
     bias = math.radians(0.02)
     rec = static_recording(spec={**SEED002_SPEC, "gyro_bias_deg_h": 720.0})  # the detector's
     initial = rec.meta.initial
-    sigma = initial.sigma.model_copy(update={"attitude_deg": [0.01] * 3})
+    sigma = initial.sigma.model_copy(update={"attitude_deg": (0.01, 0.01, 0.01)})
     rec = replace(
         rec,
         meta=rec.meta.model_copy(update={"initial": initial.model_copy(update={"sigma": sigma})}),
