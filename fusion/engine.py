@@ -781,11 +781,6 @@ class Engine:
             dx = self._coordinates.apply(dx, *self._point(sins.nav))
         sins.correct(*(dx[self.layout.slice(block)] for block in COMMON_BLOCKS))
 
-    def _indices(self, block: str) -> NDArray[np.intp]:
-        """The state indices of the common ``block`` in the layout."""
-        span = self.layout.slice(block)
-        return np.arange(span.start, span.stop)
-
     def _point(self, nav: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         """ENU velocity and ENU position about the origin of the packed navigation state
         ``nav``: where ``T`` is evaluated (:mod:`fusion.invariant_error`)."""
@@ -1300,8 +1295,8 @@ class Engine:
         from the fix at a σ of a few hundred metres."""
         rot = ctx.rotation_to_local
         moved = float(np.linalg.norm(error))
-        v, a, p = (self._indices(block) for block in (VELOCITY, ATTITUDE, POSITION))
-        velocity_error, tilt, states = np.zeros(3), np.zeros(3), p
+        v, a, p = (self.layout.slice(block) for block in (VELOCITY, ATTITUDE, POSITION))
+        velocity_error, tilt, states = np.zeros(3), np.zeros(3), np.r_[p]
         level = fix.level
         if velocity or level is not None:
             velocity_error = ctx.velocity - rot @ fix.velocity_enu
@@ -1309,7 +1304,7 @@ class Engine:
             blocks = [rot @ fix.velocity_covariance @ rot.T, covariance]
             if level is not None:
                 tilt = level.attitude_error
-                states = np.r_[v, a[:2], p]
+                states = np.r_[v, a.start : a.start + 2, p]  # the tilt
                 blocks.insert(1, level.variance * np.eye(2))
             covariance = scipy.linalg.block_diag(*blocks)
         self._restart(sins, bank, ctx, states, covariance, velocity_error, tilt, error)
