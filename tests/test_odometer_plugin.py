@@ -550,10 +550,10 @@ docs/design/2026-12-04-vibration-walks-sins-uwb-heading.md)."""
 @pytest.mark.slow
 def test_cutting_vibration_does_not_walk_the_heading(tmp_path: Path) -> None:
     """configs/sins_uwb.yaml (ranges, the constraint without an odometer, the face heading) on
-    random world 69 at 600 s: the yaw's RMS(ε/σ) is at most 1.5 (measured 0.50). With the constraint's columns
-    built from the instantaneous SINS velocity, which carries the vibration the lateral
-    innovation carries, it was 6.81 (−8.9° at a σ of 0.86° after 600 s) while the ranges held
-    the track; re-simulated without the linear vibration, 0.70."""
+    random world 69 at 600 s: the yaw's RMS(ε/σ) is at most 1.5 (measured 0.50). With the
+    constraint's columns built from the instantaneous SINS velocity, which carries the
+    vibration the lateral innovation carries, it was 6.81 (−8.9° at a σ of 0.86° after 600 s)
+    while the ranges held the track; re-simulated without the linear vibration, 0.70."""
     recording = simulate(
         "longwall-random", tmp_path / "w", seed=VIBRATING_WORLD, overrides=("duration_s=600",)
     )
