@@ -116,7 +116,19 @@ def plot_fault_timeline(traces: Sequence[Trace], path: Path, title: str) -> Path
 
 
 def plot_headline(table: Table, path: Path) -> Path | None:
-    """Bar chart of the table's headline column (None when it has none or no data)."""
+    """Bar chart of the table's headline column in ``path`` (None when it has none or no
+    data)."""
+    fig = headline_figure(table)
+    if fig is None:
+        return None
+    fig.savefig(path, dpi=100)
+    return path
+
+
+def headline_figure(table: Table) -> Figure | None:
+    """The figure of :func:`plot_headline`: one bar per row, with ± std error bars and a
+    "mean ± std" legend for a mean column, bare bars named by the aggregate otherwise (a
+    median has no spread to show)."""
     spec = table.spec
     if spec.headline is None:
         return None
@@ -148,5 +160,4 @@ def plot_headline(table: Table, path: Path) -> Path | None:
     ax.grid(True, axis="y", alpha=0.3)
     ax.legend(fontsize=8)
     fig.tight_layout()
-    fig.savefig(path, dpi=100)
-    return path
+    return fig

@@ -14,9 +14,11 @@ from types import SimpleNamespace
 
 import numpy as np
 import pytest
+from matplotlib.container import BarContainer
 
 from benchmarks.checkpoint import TaskStore, source_fingerprint
 from benchmarks.faults import plan_fault
+from benchmarks.figures import headline_figure
 from benchmarks.report import SIMULATED_END, accuracy_csv, committed_section, write_suite
 from benchmarks.runner import (
     Method,
@@ -126,6 +128,33 @@ def test_table_mean_std_paper_and_pivot_columns():
     assert csv_lines[0].startswith("label,group,method,solution,n,x_mean,x_std,x_paper")
     assert csv_lines[1].startswith("A,g1,a,forward,2,2.0,1.0,2.5")
     assert len(csv_lines) == 3
+
+
+@pytest.mark.parametrize(
+    ("agg", "legend", "error_bars"),
+    [("mean", "ours, mean ± std", True), ("median", "ours, median over the runs", False)],
+)
+def test_headline_chart_names_its_aggregate(agg: str, legend: str, error_bars: bool) -> None:
+    """The bar chart of a mean column shows ± std error bars and says so; a median column
+    (the robustness table's) has no spread to show: bare bars, named by the aggregate."""
+    rows = [
+        {"group": "g", "method": "a", "solution": "forward", "seed": s, "x": v}
+        for s, v in enumerate((1.0, 2.0, 6.0))
+    ]
+    spec = TableSpec(
+        name="t",
+        title="T",
+        rows=(RowSpec("A", "g", "a"),),
+        columns=(Column("x", "x", agg=agg),),
+        headline="x",
+    )
+    fig = headline_figure(build_table(spec, rows))
+    assert fig is not None
+    ax = fig.axes[0]
+    assert legend in [t.get_text() for t in ax.get_legend().get_texts()]
+    (bars,) = [c for c in ax.containers if isinstance(c, BarContainer)]
+    assert bars[0].get_height() == pytest.approx(3.0 if agg == "mean" else 2.0)
+    assert (bars.errorbar is not None) == error_bars
 
 
 def _event(t: float, local: str, action: str) -> FaultEvent:
