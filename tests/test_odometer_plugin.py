@@ -264,11 +264,11 @@ def test_constraint_attitude_columns_wait_for_a_speed_clear_of_its_uncertainty()
 
 def test_constraint_columns_take_the_mean_velocity_of_the_window() -> None:
     """Mode motion_constraint: the attitude and mounting columns are built at the SINS travel's
-    mean velocity over ``reference_window_s`` (:class:`fusion.aiding.odometer.TravelWindow`),
+    mean velocity over ``column_window_s`` (:class:`fusion.aiding.odometer.TravelWindow`),
     while the innovation keeps the instantaneous velocity. A 6.3-Hz cutting vibration of
     2.6 cm/s across the track is in every epoch's velocity and innovation; in the columns a box
     of span T leaves at most a / (π f T) of it. Before the window holds half its span the
-    instantaneous velocity stands in."""
+    instantaneous velocity stands in, and with a window of zero always (a car)."""
     rec = Recording(path=None, meta=recording_meta(), imu=still_imu(), odometer=None)
     plugin = Odometer("mc", OdometerOptions(mode="motion_constraint"), rec)
     layout = layout_with(plugin.state_blocks())
@@ -296,11 +296,14 @@ def test_constraint_columns_take_the_mean_velocity_of_the_window() -> None:
         worst_instantaneous = max(
             worst_instantaneous, float(np.linalg.norm(velocity - mean_velocity))
         )
-        expected = -(plugin.c_b_m @ skew(m.velocity_at))[[0, 2]]
+        expected = -(plugin.c_b_m @ skew(m.velocity_at))[[0, 2]]  # level: C_b^n = I
         np.testing.assert_allclose(m.H[:, layout.slice("attitude")], expected, atol=1e-12)
+        np.testing.assert_allclose(m.H[:, layout.slice("mc.mounting_angles")], expected, atol=1e-12)
     print(f"columns' vibration at most {worst_leak:.2f} of its bound")
     assert worst_instantaneous > 0.5 * amplitude
     assert worst_leak <= 1.0
+    car = OdometerOptions(mode="motion_constraint", column_window_s=0.0)
+    np.testing.assert_allclose(Odometer("mc", car, rec).measure(0, ctx).velocity_at, velocity)
 
 
 def test_zero_angular_rate_at_odometer_standstill() -> None:
