@@ -304,6 +304,8 @@ def test_constraint_columns_take_the_mean_velocity_of_the_window() -> None:
     assert worst_leak <= 1.0
     car = OdometerOptions(mode="motion_constraint", column_window_s=0.0)
     np.testing.assert_allclose(Odometer("mc", car, rec).measure(0, ctx).velocity_at, velocity)
+    with pytest.raises(ValueError, match="column_window_s needs mode: motion_constraint"):
+        OdometerOptions(mode="odometer", column_window_s=0.5)
 
 
 def test_zero_angular_rate_at_odometer_standstill() -> None:

@@ -298,6 +298,15 @@ class OdometerOptions(PluginOptions):
         return self
 
     @model_validator(mode="after")
+    def _column_window_needs_constraint(self) -> OdometerOptions:
+        if "column_window_s" in self.model_fields_set and self.mode != "motion_constraint":
+            raise ValueError(
+                "column_window_s needs mode: motion_constraint (with an odometer the encoder's"
+                " reference speed builds the columns: reference_window_s)"
+            )
+        return self
+
+    @model_validator(mode="after")
     def _speed_state_needs_constraint(self) -> OdometerOptions:
         if self.max_speed_mps is not None and self.mode != "motion_constraint":
             raise ValueError(
