@@ -242,7 +242,8 @@ class OdometerOptions(PluginOptions):
         description="motion_constraint mode only: the attitude and mounting columns take the"
         " SINS's mean velocity over this window (TravelWindow), which the cutting vibration in"
         " the innovation is not in; 0: the instantaneous velocity, for a vehicle whose speed"
-        " dwarfs its vibration (a car: with 1 s its drift in 30-s GNSS outages grew by 9 %)",
+        " dwarfs its vibration, such as a car, where the window cost accuracy"
+        " (docs/design/2026-12-04-vibration-walks-sins-uwb-heading.md)",
     )
     zero_angular_rate: bool = Field(
         False, description="ZARU while the odometer shows standstill (mode odometer only)"
@@ -333,12 +334,11 @@ class TravelWindow:
     — the velocity at which the motion constraint's attitude and mounting columns are built
     without an odometer (``column_window_s``). The lateral innovation is the instantaneous SINS
     velocity and carries the cutting vibration; columns built from that same velocity carry it
-    too, and the mean of their product walked the heading: ``sins_uwb`` on random world 69
-    (600 s, 1 m/s² at 6–37 Hz) ended −8.9° off at a σ of 0.86° with the ranges holding the
-    track; from the 1-s mean, 0.4° at 1.0°
-    (docs/design/2026-12-04-vibration-walks-sins-uwb-heading.md). A 1-s box passes a 3-Hz
-    vibration at ≤ 11 % of its amplitude. Until the window holds half its span (a run's
-    start, a gap in the epochs) the instantaneous velocity stands in."""
+    too, and the mean of their product walks the heading off its σ while the track stays right
+    (docs/design/2026-12-04-vibration-walks-sins-uwb-heading.md). A box of span T passes a
+    vibration of frequency f at ≤ 1/(π f T) of its amplitude (≤ 11 % at 3 Hz for T = 1 s).
+    Until the window holds half its span (a run's start, a gap in the epochs) the
+    instantaneous velocity stands in."""
 
     def __init__(self, span_s: float) -> None:
         self.span_s = span_s
