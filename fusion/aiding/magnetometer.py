@@ -25,13 +25,20 @@ With ``C̃_b^n = (I − φ×) C_b^n`` and ``B̃^b = C_n^b B^n + v``, ``u = B^n +
 The seed's ``H = [0, 0, 1]`` (eq. 26) keeps only the last term. The tilt terms do not vanish:
 a tilt error about magnetic east turns part of the vertical field (larger than the horizontal
 one for I > 45°) into the horizontal plane; at I = 54° a 0.1° tilt error moves ψ_mag by 0.14°.
-They are modelled here. H is evaluated at the *expected* field (meta.yaml's D and the learned
-site dip below), not at the measured ``u``: an H built from the noisy sample is correlated
-with the noise of the same sample's z, so ``E[K ν] ≠ 0`` and every update pushes the state the
-same way — on seed003-brokenline that walked the tilt along its unobservable
-tilt/accelerometer-bias direction at 0.003°/s. The white field noise (σ_B per axis, rotated
-isotropically; its horizontal component across the field moves the heading) gives
-``R_0 = σ_B² / (F cos I)²`` (F, I: the learned site field).
+They are modelled here. H is evaluated at the *expected* field, not at the measured ``u``:
+an H built from the noisy sample is correlated with the noise of the same sample's z, so
+``E[K ν] ≠ 0`` and every update pushes the state the same way — on seed003-brokenline that
+walked the tilt along its unobservable tilt/accelerometer-bias direction at 0.003°/s. The
+expected field is fixed for the run (a first-estimates Jacobian, Huang, Mourikis & Roumeliotis
+2008): meta.yaml's D, F and I, or the first sample's F and I where meta.yaml states none; not
+the site field learned below. At rest the magnetometer measures one sum, the heading plus the
+heading its hard iron and δD make; an H that follows a learned F and I changes while the state
+stays put, and the filter reads the change as information that tells the heading from its
+biases, which no sample carried (docs/design/2026-12-04-magnetometer-linearization.md). A
+meta.yaml field a few per cent off only rescales the hard-iron states' µT. The white field
+noise (σ_B per axis, rotated isotropically; its horizontal component across the field moves
+the heading) gives ``R_0 = σ_B² / (F cos I)²`` (F, I: the learned site field; R may follow
+what is learned, H may not).
 
 **Heading biases.** A calibrated magnetometer still carries a residual hard iron ``h`` (a body
 field of 1–2 µT: up to 4° of heading against a 30 µT horizontal field) and meta.yaml's
@@ -233,6 +240,7 @@ class Magnetometer(Plugin):
         self._window: deque[tuple[float, float]] = deque(maxlen=opts.adaptive_window)
         self._suspect_until = -math.inf
         self._disturbance_uT = 0.0
+        self._linearization: tuple[float, float] | None = None
         tolerance_dip = math.radians(opts.inclination_tolerance_deg)
         self.site_norm = LearnedValue(
             meta.field_uT if meta.field_uT is not None else 0.0,
@@ -325,19 +333,20 @@ class Magnetometer(Plugin):
         suspect = ctx.t <= self._suspect_until
         if suspect and opts.skip_suspect:
             return None
-        norm, dip = self._site_field(field_b, u)
         yaw = euler_from_dcm(ctx.c_b_n)[2]
         z = np.array([wrap_angle(yaw - self.magnetic_heading(index, ctx.c_b_n))])
         h = np.zeros((1, ctx.layout.dim))
+        norm, dip = self._linearization_field(field_b, u)
         tan_dip = math.tan(dip)
         sin_d, cos_d = math.sin(self.declination), math.cos(self.declination)
         h[0, att] = [tan_dip * sin_d, tan_dip * cos_d, 1]
-        horizontal = norm * math.cos(dip)
         if opts.declination_sigma_deg > 0.0:
             h[0, ctx.layout.slice(self.declination_block)] = -1.0
         if opts.hard_iron_sigma_uT > 0.0:  # z = heading(C̃ (B + h)) − D: ∂/∂h = gᵀ C̃
-            g = np.array([cos_d, -sin_d, 0.0]) / horizontal
+            g = np.array([cos_d, -sin_d, 0.0]) / (norm * math.cos(dip))
             h[0, ctx.layout.slice(self.hard_iron_block)] = g @ ctx.c_b_n
+        norm, dip = self._site_field(field_b, u)
+        horizontal = norm * math.cos(dip)
         floor = (opts.sigma_field_uT / horizontal) ** 2
         r = self._adaptive_variance(floor)
         if suspect:  # down-weight: the disturbance seen, and as much again unseen (module doc)
@@ -347,11 +356,28 @@ class Magnetometer(Plugin):
             self._window.append((innovation**2, float(h[0] @ ctx.covariance @ h[0])))
         return Measurement(z, h, np.array([[r]]), suspect=suspect)
 
+    def _linearization_field(
+        self, field_b: NDArray[np.float64], u: NDArray[np.float64]
+    ) -> tuple[float, float]:
+        """Norm (µT) and dip (rad) of the earth field H is evaluated at, fixed for the run:
+        meta.yaml's, or the run's first sample's where meta.yaml states none (module
+        docstring, first-estimates Jacobian)."""
+        if self._linearization is None:
+            meta = self.meta
+            norm = float(np.linalg.norm(field_b)) if meta.field_uT is None else meta.field_uT
+            dip = (
+                math.atan2(-u[2], math.hypot(u[0], u[1]))
+                if meta.inclination_deg is None
+                else math.radians(meta.inclination_deg)
+            )
+            self._linearization = (norm, dip)
+        return self._linearization
+
     def _site_field(
         self, field_b: NDArray[np.float64], u: NDArray[np.float64]
     ) -> tuple[float, float]:
-        """Norm (µT) and dip (rad) of the site field the model is linearized at: the learned
-        ones, or this sample's before anything is learned."""
+        """Norm (µT) and dip (rad) of the site field R is scaled by: the learned ones, or this
+        sample's before anything is learned."""
         norm = self.site_norm.value if math.isfinite(self.site_norm.variance) else None
         dip = self.site_dip.value if math.isfinite(self.site_dip.variance) else None
         if norm is None:
