@@ -345,8 +345,8 @@ class Magnetometer(Plugin):
         if opts.hard_iron_sigma_uT > 0.0:  # z = heading(C̃ (B + h)) − D: ∂/∂h = gᵀ C̃
             g = np.array([cos_d, -sin_d, 0.0]) / (norm * math.cos(dip))
             h[0, ctx.layout.slice(self.hard_iron_block)] = g @ ctx.c_b_n
-        norm, dip = self._site_field(field_b, u)
-        horizontal = norm * math.cos(dip)
+        site_field, site_dip = self._site_field(field_b, u)
+        horizontal = site_field * math.cos(site_dip)
         floor = (opts.sigma_field_uT / horizontal) ** 2
         r = self._adaptive_variance(floor)
         if suspect:  # down-weight: the disturbance seen, and as much again unseen (module doc)
