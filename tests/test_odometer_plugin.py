@@ -511,6 +511,25 @@ def test_top_speed_is_a_state_the_along_track_row_reads() -> None:
         OdometerOptions(mode="odometer", max_speed_mps=0.6)
 
 
+@pytest.mark.parametrize(
+    ("key", "value", "mode"),
+    [
+        ("zero_angular_rate", False, "motion_constraint"),
+        ("heading_untouched", False, "odometer"),
+        ("column_window_s", 1.0, "odometer"),
+        ("max_speed_mps", None, "odometer"),
+        ("speed_correlation_time_s", 600.0, "odometer"),
+        ("constraint_rate_hz", 10.0, "odometer"),
+    ],
+)
+def test_an_option_of_the_other_mode_is_refused(key: str, value: object, mode: str) -> None:
+    """An option only the other mode uses is refused even at its default value: the key would be
+    silently ignored, and a user who wrote it expected it to act."""
+    with pytest.raises(ValueError, match=f"{key} needs mode: "):
+        OdometerOptions.model_validate({"mode": mode, key: value})
+    OdometerOptions.model_validate({"mode": mode})
+
+
 TOP_SPEED_WORLDS = (2, 3)
 """Of random worlds 0–7 at 600 s, the two where ``sins_mc`` without its top speed runs furthest
 from its σ (RMS(ε/σ) east/north 1.89 / 2.06 and 1.69 / 1.64; the other six 0.21–1.90 per axis,

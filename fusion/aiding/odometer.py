@@ -182,6 +182,24 @@ def still_readings(
     return reading_still & (np.abs(mean) <= 3.0 * sigma / np.sqrt(count))
 
 
+_MODE_ONLY: dict[str, tuple[str, str]] = {
+    "zero_angular_rate": ("odometer", "the encoder shows the stops"),
+    "heading_untouched": (
+        "motion_constraint",
+        "an odometer's speed gives the direction of the velocity",
+    ),
+    "column_window_s": (
+        "motion_constraint",
+        "with an odometer the encoder's reference speed builds the columns: reference_window_s",
+    ),
+    "max_speed_mps": ("motion_constraint", "an odometer measures it"),
+    "speed_correlation_time_s": ("motion_constraint", "the speed state of max_speed_mps"),
+    "constraint_rate_hz": ("motion_constraint", "an odometer's epochs are its readings"),
+}
+"""The options that only one mode uses, with the mode and why. Writing one on the other mode is
+an error, whatever its value: the key would be silently ignored."""
+
+
 class OdometerOptions(PluginOptions):
     """Options of the odometer / motion-constraint plugin."""
 
@@ -284,35 +302,11 @@ class OdometerOptions(PluginOptions):
     )
 
     @model_validator(mode="after")
-    def _zero_rate_needs_odometer(self) -> OdometerOptions:
-        if self.zero_angular_rate and self.mode != "odometer":
-            raise ValueError("zero_angular_rate needs mode: odometer (the encoder shows the stops)")
-        return self
-
-    @model_validator(mode="after")
-    def _heading_untouched_needs_constraint(self) -> OdometerOptions:
-        if self.heading_untouched and self.mode != "motion_constraint":
-            raise ValueError(
-                "heading_untouched needs mode: motion_constraint (an odometer's speed gives the"
-                " direction of the velocity)"
-            )
-        return self
-
-    @model_validator(mode="after")
-    def _column_window_needs_constraint(self) -> OdometerOptions:
-        if "column_window_s" in self.model_fields_set and self.mode != "motion_constraint":
-            raise ValueError(
-                "column_window_s needs mode: motion_constraint (with an odometer the encoder's"
-                " reference speed builds the columns: reference_window_s)"
-            )
-        return self
-
-    @model_validator(mode="after")
-    def _speed_state_needs_constraint(self) -> OdometerOptions:
-        if self.max_speed_mps is not None and self.mode != "motion_constraint":
-            raise ValueError(
-                "max_speed_mps needs mode: motion_constraint (an odometer measures it)"
-            )
+    def _options_of_the_other_mode(self) -> OdometerOptions:
+        for key in sorted(self.model_fields_set & _MODE_ONLY.keys()):
+            mode, reason = _MODE_ONLY[key]
+            if self.mode != mode:
+                raise ValueError(f"{key} needs mode: {mode} ({reason})")
         return self
 
     @model_validator(mode="after")
