@@ -501,6 +501,8 @@ class Engine:
         self.layout = StateLayout(blocks).extended(b for own in self.plugin_blocks for b in own)
         axes = config.filter.invariant_error
         self._coordinates = None if axes == "none" else InvariantCoordinates(AXES[axes])
+        self._specific_force = SpecificForceFilter(config.filter.specific_force_time_constant_s)
+        """The low-passed specific force of F, a run's (:meth:`run` starts a new one)."""
         self._analysis: CovarianceAnalysis | None = None  # set per run
         if config.filter.reported_covariance == "invariant_analysis":
             self._check_analysable()
@@ -614,7 +616,9 @@ class Engine:
             eye = np.eye(bank.smoothing_dim)
             smoother.step(t0, eye, state, state, np.zeros(bank.smoothing_dim), sins.nav)
         t_cov = t0
-        specific_force = SpecificForceFilter(cfg.specific_force_time_constant_s)
+        specific_force = self._specific_force = SpecificForceFilter(
+            cfg.specific_force_time_constant_s
+        )
         gaps = iter(self.gap_bridges)
         next_gap = next(gaps, None)
         n_events = len(times)
@@ -779,7 +783,15 @@ class Engine:
         error (``T dx`` with ``filter.invariant_error``)."""
         if self._coordinates is not None:
             dx = self._coordinates.apply(dx, *self._point(sins.nav))
-        sins.correct(*(dx[self.layout.slice(block)] for block in COMMON_BLOCKS))
+        self._feed_back(sins, *(dx[self.layout.slice(block)] for block in COMMON_BLOCKS))
+
+    def _feed_back(self, sins: Strapdown, *errors: NDArray[np.float64]) -> None:
+        """``sins.correct(*errors)``, the specific force held for F moved with the nominal
+        state (:meth:`fusion.error_model.SpecificForceFilter.follow`)."""
+        c_b_n = sins.c_b_n
+        sins.correct(*errors)
+        accel_bias_error = errors[4]
+        self._specific_force.follow(sins.c_b_n @ c_b_n.T, -sins.c_b_n @ accel_bias_error)
 
     def _point(self, nav: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         """ENU velocity and ENU position about the origin of the packed navigation state
@@ -1331,7 +1343,7 @@ class Engine:
         ``states`` with ``covariance``, uncorrelated with the rest (in the standard error)."""
         if self._coordinates is not None:  # the restart is of standard states
             bank.change_coordinates(self._transform(sins))
-        sins.correct(velocity_error, attitude_error, np.zeros(3), np.zeros(3), np.zeros(3))
+        self._feed_back(sins, velocity_error, attitude_error, np.zeros(3), np.zeros(3), np.zeros(3))
         if position_error.any():
             self._move(sins, ctx.position_enu - ctx.rotation_to_local.T @ position_error)
         bank.restart_common(states, covariance)

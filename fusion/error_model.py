@@ -41,7 +41,9 @@ vibration aliases into the 0.1-s step means as ±0.05 m/s² of horizontal force,
 then lets 10-Hz velocity aiding "see" the heading through couplings that its interval means
 cannot resolve. The filter grew overconfident in the yaw (``longwall-200m``, SINS + odometer at
 the encoder's 2–3 mm/s, 8 seeds of 300 s: yaw RMS(ε/σ) 2.1; without vibration 0.9; with
-τ = 1 s 1.2). The configs of the shearer set τ = 1 s (README, "Configurations").
+τ = 1 s 1.2). The configs of the shearer set τ = 1 s (README, "Configurations"). The force held
+is of the nominal state, so a feedback of the attitude or the accelerometer bias moves it at once
+(:meth:`SpecificForceFilter.follow`).
 
 Discretization over a covariance step Δt: ``series`` (default) uses
 ``Φ = I + FΔt + (FΔt)²/2 + (FΔt)³/6`` (third order: position ← attitude ← gyro bias is a
@@ -593,6 +595,18 @@ class SpecificForceFilter:
     def __init__(self, time_constant_s: float) -> None:
         self.time_constant_s = time_constant_s
         self._value: NDArray[np.float64] | None = None
+
+    def follow(self, rotation: NDArray[np.float64], shift: NDArray[np.float64]) -> None:
+        """Move the force held to a feedback of the nominal state, ``f ← R f + s``.
+
+        A feedback turns the nominal attitude by ``R = C_b^n⁺ (C_b^n)ᵀ`` and moves the nominal
+        accelerometer bias by ∇, which changes the nominal force at once by ``s = −C_b^n⁺ ∇``.
+        Held unmoved, the memory would keep for τ the horizontal force of a tilt error the
+        feedback has removed (g × 1.5° at a coarse start), and ``f^n × φ`` would read the
+        heading from a standstill through that force.
+        """
+        if self._value is not None:
+            self._value = rotation @ self._value + shift
 
     def __call__(self, f_step: NDArray[np.float64], dt: float) -> NDArray[np.float64]:
         """The specific force for F after a step of length ``dt`` whose mean was ``f_step``."""

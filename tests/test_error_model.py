@@ -1,5 +1,7 @@
 """The error-state model against the mechanization it linearizes."""
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
@@ -11,7 +13,9 @@ from fusion.attitude import (
     quat_from_rotvec,
     quat_multiply,
 )
+from fusion.config import parse_config
 from fusion.earth import LocalFrame
+from fusion.engine import Engine
 from fusion.error_model import (
     ErrorModel,
     ImuNoise,
@@ -23,6 +27,7 @@ from fusion.error_model import (
     navigation_error,
 )
 from fusion.strapdown import HGT, LAT, LON, Q0, VEL, NavState, Strapdown
+from tests.plugin_support import recording_meta, static_recording
 
 IMU = ImuNoise.from_datasheet(
     gyro_arw_deg_rth=0.1, accel_vrw_mg_rthz=0.05, gyro_bias_deg_h=10, accel_bias_mg=1
@@ -113,6 +118,54 @@ def test_specific_force_filter_is_a_first_order_low_pass() -> None:
         value = low_pass(np.array([0.0, 1.0, 0.0]), 0.01)
     assert value[1] == pytest.approx(1.0 - np.exp(-1.0), abs=0.005)
     assert value[0] == value[2] == 0.0
+
+
+def test_the_force_held_follows_a_feedback() -> None:
+    """``follow`` turns the held force and shifts it; with nothing held it does nothing."""
+    low_pass = SpecificForceFilter(1.0)
+    low_pass.follow(np.eye(3), np.ones(3))
+    np.testing.assert_array_equal(low_pass(np.array([0.0, 0.0, 9.8]), 0.01), [0.0, 0.0, 9.8])
+    turn = Rotation.from_rotvec([0.02, 0.0, 0.0]).as_matrix()
+    low_pass.follow(turn, np.array([0.0, 0.0, -0.01]))
+    expected = turn @ np.array([0.0, 0.0, 9.8]) + np.array([0.0, 0.0, -0.01])
+    np.testing.assert_allclose(low_pass(expected, 0.01), expected, atol=1e-12)
+
+
+@pytest.mark.parametrize("time_constant_s", [0.0, 1.0])
+def test_a_coarse_start_leaves_no_force_in_f_that_observes_the_heading(
+    time_constant_s: float,
+) -> None:
+    """A level IMU at rest whose meta.yaml states it 1.5° off in roll and −1° in pitch: the zero
+    velocities level it within a second. The force F holds moves with that feedback
+    (:meth:`SpecificForceFilter.follow`), so a low-pass of τ = 1 s keeps no horizontal
+    g × 1.5° of the tilt removed, and the heading, which nothing here observes, keeps 99 % of its
+    prior σ after 30 s, as with the step mean (τ = 0). Held unmoved, that force took the yaw σ
+    to 83 % of its prior on a random world's start
+    (docs/design/2026-12-04-invariant-heading-for-the-full-filters.md)."""
+    level = static_recording(seed=3)
+    tilted = {
+        "attitude_deg": {"roll": 1.5, "pitch": -1.0, "yaw": 0.0},
+        "sigma": {
+            "position_m": [0.1] * 3,
+            "velocity_mps": [0.01] * 3,
+            "attitude_deg": [1.2, 1.2, 0.7],
+        },
+    }
+    recording = replace(level, meta=recording_meta(imu=level.meta.imu.model_dump(), initial=tilted))
+    config = parse_config(
+        {
+            "name": "zupt",
+            "filter": {"specific_force_time_constant_s": time_constant_s},
+            "plugins": [{"type": "zupt"}],
+        }
+    )
+    result = Engine(config, recording).run()
+    assert result.states is not None
+    sigma = result.states.euler_sigma()
+    roll, yaw = float(sigma[-1, 0]), float(sigma[-1, 2])  # degrees
+    print(f"τ {time_constant_s} s: roll σ {roll:.3f}°, yaw σ {yaw:.4f}° of 0.7°")
+    assert roll < 0.5  # levelled
+    assert yaw >= 0.99 * 0.7
 
 
 @pytest.mark.parametrize("yaw_deg", [0.0, 45.0, 183.0, 270.0])
