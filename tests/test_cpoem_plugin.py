@@ -490,17 +490,21 @@ def test_consistency_over_20_seeds(
     mems_runs: list[CarrierRun], matched_runs: list[MatchedRun]
 ) -> None:
     """With the noise the simulator used (:func:`_matched_config`), pooled over 20 seeds: the
-    CPOEM innovations' whitened RMS in [0.7, 1.3] and RMS(err/σ) < 1.5 for velocity, attitude
-    and position (at every tenth odometer epoch). The stored points' errors are correlated with
-    the filter's (fusion/aiding/cpoem.py); taken as independent noise, R × n (the weighting before
-    the cross-covariances were tracked) gave a whitened RMS of 0.20. With the shipped
+    CPOEM innovations' whitened RMS in [0.6, 1.3] and RMS(err/σ) < 1.5 for velocity, attitude
+    and position (at every tenth odometer epoch). The lower bound is issue 29's: it was 0.7
+    until the low-passed force in F followed the feedback (e861cae), which took the whitened
+    RMS from 0.704 to 0.628 with the state's RMS(err/σ) the same to 2 % (1.15 / 1.14 / 1.36):
+    the force a removed tilt left in the low-pass had told this filter a heading too. The stored
+    points' errors are correlated with the filter's (fusion/aiding/cpoem.py); taken as
+    independent noise, R × n (the weighting before the cross-covariances were tracked) gave a
+    whitened RMS of 0.20. With the shipped
     configuration, pessimistic on this simulator, the position must still be within 1.5σ and
     the innovations not optimistic (whitened ≤ 1.3), over the first three seeds."""
     nis, dof = np.sum([r.nis_dof for r in matched_runs], axis=0)
     whitened = np.sqrt(nis / dof)  # RMS of the whitened components (‖w‖² = NIS)
     ratios = group_rms(np.concatenate([r.ratios for r in matched_runs]))
     print(f"simulator's noise: CPOEM whitened RMS {whitened:.3f}, RMS(err/σ) {ratios}")
-    assert 0.7 <= whitened <= 1.3
+    assert 0.6 <= whitened <= 1.3
     assert max(ratios.values()) < 1.5
     squared = np.concatenate([r.squared_normalized for r in mems_runs])
     position = np.sqrt(squared.mean(axis=0))
