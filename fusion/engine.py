@@ -616,9 +616,7 @@ class Engine:
             eye = np.eye(bank.smoothing_dim)
             smoother.step(t0, eye, state, state, np.zeros(bank.smoothing_dim), sins.nav)
         t_cov = t0
-        specific_force = self._specific_force = SpecificForceFilter(
-            cfg.specific_force_time_constant_s
-        )
+        self._specific_force = SpecificForceFilter(cfg.specific_force_time_constant_s)
         gaps = iter(self.gap_bridges)
         next_gap = next(gaps, None)
         n_events = len(times)
@@ -634,7 +632,7 @@ class Engine:
             dt = te - t_cov
             phi = None
             if dt > 1e-9:
-                f_n = specific_force(sins.take_velocity_increment() / dt, dt)
+                f_n = self._specific_force(sins.take_velocity_increment() / dt, dt)
                 common = bank.common_covariance()
                 if cfg.observable_force:
                     f_n = observable_force(f_n, sins.c_b_n, common)
@@ -788,6 +786,9 @@ class Engine:
     def _feed_back(self, sins: Strapdown, *errors: NDArray[np.float64]) -> None:
         """``sins.correct(*errors)``, the specific force held for F moved with the nominal
         state (:meth:`fusion.error_model.SpecificForceFilter.follow`)."""
+        if not self._specific_force.holds_force:  # τ = 0: nothing to move, no DCMs to build
+            sins.correct(*errors)
+            return
         c_b_n = sins.c_b_n
         sins.correct(*errors)
         accel_bias_error = errors[4]

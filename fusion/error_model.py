@@ -596,6 +596,12 @@ class SpecificForceFilter:
         self.time_constant_s = time_constant_s
         self._value: NDArray[np.float64] | None = None
 
+    @property
+    def holds_force(self) -> bool:
+        """Whether a force is held (τ > 0 after the first step): else :meth:`follow` has
+        nothing to move."""
+        return self._value is not None
+
     def follow(self, rotation: NDArray[np.float64], shift: NDArray[np.float64]) -> None:
         """Move the force held to a feedback of the nominal state, ``f ← R f + s``.
 
