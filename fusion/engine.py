@@ -783,15 +783,23 @@ class Engine:
             dx = self._coordinates.apply(dx, *self._point(sins.nav))
         self._feed_back(sins, *(dx[self.layout.slice(block)] for block in COMMON_BLOCKS))
 
-    def _feed_back(self, sins: Strapdown, *errors: NDArray[np.float64]) -> None:
-        """``sins.correct(*errors)``, the specific force held for F moved with the nominal
+    def _feed_back(
+        self,
+        sins: Strapdown,
+        velocity_error: NDArray[np.float64],
+        attitude_error: NDArray[np.float64],
+        position_error_enu: NDArray[np.float64],
+        gyro_bias_error: NDArray[np.float64],
+        accel_bias_error: NDArray[np.float64],
+    ) -> None:
+        """:meth:`Strapdown.correct`, the specific force held for F moved with the nominal
         state (:meth:`fusion.error_model.SpecificForceFilter.follow`)."""
+        errors = (velocity_error, attitude_error, position_error_enu, gyro_bias_error)
         if not self._specific_force.holds_force:  # τ = 0: nothing to move, no DCMs to build
-            sins.correct(*errors)
+            sins.correct(*errors, accel_bias_error)
             return
         c_b_n = sins.c_b_n
-        sins.correct(*errors)
-        accel_bias_error = errors[4]
+        sins.correct(*errors, accel_bias_error)
         self._specific_force.follow(sins.c_b_n @ c_b_n.T, -sins.c_b_n @ accel_bias_error)
 
     def _point(self, nav: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
