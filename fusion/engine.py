@@ -794,13 +794,13 @@ class Engine:
     ) -> None:
         """:meth:`Strapdown.correct`, the specific force held for F moved with the nominal
         state (:meth:`fusion.error_model.SpecificForceFilter.follow`)."""
-        errors = (velocity_error, attitude_error, position_error_enu, gyro_bias_error)
-        if not self._specific_force.holds_force:  # τ = 0: nothing to move, no DCMs to build
-            sins.correct(*errors, accel_bias_error)
-            return
-        c_b_n = sins.c_b_n
-        sins.correct(*errors, accel_bias_error)
-        self._specific_force.follow(sins.c_b_n @ c_b_n.T, -sins.c_b_n @ accel_bias_error)
+        held = self._specific_force.holds_force  # τ = 0: nothing to move, no DCMs to build
+        c_b_n = sins.c_b_n if held else None
+        sins.correct(
+            velocity_error, attitude_error, position_error_enu, gyro_bias_error, accel_bias_error
+        )
+        if c_b_n is not None:
+            self._specific_force.follow(sins.c_b_n @ c_b_n.T, -sins.c_b_n @ accel_bias_error)
 
     def _point(self, nav: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         """ENU velocity and ENU position about the origin of the packed navigation state
