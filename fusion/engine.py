@@ -1331,10 +1331,15 @@ class Engine:
         self._restart(sins, bank, ctx, states, covariance, velocity_error, tilt, error)
         if level is None:
             return moved, f"alone moved the position by {moved:.3g} m"
+        speed = float(np.linalg.norm(fix.velocity_enu))
         return moved, (
-            f"at rest: restarted the velocity at zero (it was {np.linalg.norm(velocity_error):.3g}"
-            f" m/s), levelled the attitude by {math.degrees(np.linalg.norm(tilt)):.3g}° and moved"
-            f" the position by {moved:.3g} m"
+            (
+                f"in motion: restarted the velocity at {speed:.3g} m/s"
+                if speed
+                else "at rest: restarted the velocity at zero"
+            )
+            + f" (it was {np.linalg.norm(velocity_error):.3g} m/s off), levelled the attitude by"
+            f" {math.degrees(np.linalg.norm(tilt)):.3g}° and moved the position by {moved:.3g} m"
         )
 
     def _restart(

@@ -37,9 +37,10 @@ claims, which a car at a steady speed fools): the line is written, nothing infla
 SINS states are inflated: the rejected plugin's own states (mounting, scale)
 would otherwise take up the next update instead of the SINS. Once per loss: a lost lock again before
 a window with most updates accepted is only reported (:meth:`LockMonitor.first_inflation`). An
-encoder cannot say where the machine is, but at a standstill it can say what the machine does:
-once an inflation has not brought its readings back, it re-acquires at rest (velocity zero, the
-tilt from the accelerometers, :class:`RestLevel`;
+encoder cannot say where the machine is, but it can say what the machine does: once an
+inflation has not brought its readings back, it re-acquires the velocity (zero at a standstill,
+its speed along the travel axis while the machine hauls) and the tilt from the accelerometers
+(:class:`RestLevel`, less the haulage's acceleration;
 :meth:`fusion.aiding.odometer.Odometer.reacquire`). Either way the monitor starts over.
 """
 
@@ -103,13 +104,15 @@ def level(force_n: NDArray[np.float64]) -> NDArray[np.float64]:
 
 
 class RestLevel:
-    """The tilt of a machine known to stand, from its accelerometers (:class:`Level`): the
-    re-acquisition of a plugin that knows the standstill (a ZUPT, an encoder at rest).
+    """The tilt of a machine known to stand, or to move at a known acceleration, from its
+    accelerometers (:class:`Level`): the re-acquisition of a plugin that knows the standstill
+    (a ZUPT, an encoder at rest) or the haulage (an encoder in motion).
 
-    The mean specific force of the standstill's last seconds, less the fed-back accelerometer
-    bias, is the vertical (:func:`level`) to within the datasheet accelerometer bias over
-    gravity (an unknown bias tilts the measured vertical by ``b/g``) and the mean's white noise
-    (the samples' scatter over their number)."""
+    The mean specific force of the last seconds, less the fed-back accelerometer bias and the
+    known acceleration, is the vertical (:func:`level`) to within the datasheet accelerometer
+    bias over gravity (an unknown bias tilts the measured vertical by ``b/g``), the mean's white
+    noise (the samples' scatter over their number) and, for a known acceleration ``a``, ``|a|/g``
+    (how far it may have changed over the window)."""
 
     def __init__(self, recording: Recording) -> None:
         self._imu = recording.imu
@@ -128,17 +131,21 @@ class RestLevel:
         end: float,
         c_b_n: NDArray[np.float64],
         accel_bias: NDArray[np.float64],
+        acceleration: NDArray[np.float64] | None = None,
     ) -> Level | None:
         """The level from the IMU samples in ``(start, end]`` at the nominal attitude
-        ``c_b_n`` with the fed-back bias ``accel_bias`` (m/s², body); None without a sample."""
+        ``c_b_n`` with the fed-back bias ``accel_bias`` and the machine's ``acceleration``
+        (m/s², body; None: it stands); None without a sample."""
         samples = (self._imu.t > start) & (self._imu.t <= end)
         accel = self._imu.accel[samples]
         if not accel.shape[0]:
             return None
-        tilt = level(c_b_n @ (accel.mean(axis=0) - accel_bias))
+        known = np.zeros(3) if acceleration is None else acceleration
+        tilt = level(c_b_n @ (accel.mean(axis=0) - accel_bias - known))
         n = accel.shape[0]
         scatter = float(np.mean(np.var(accel, axis=0, ddof=1))) / n if n > 1 else 0.0
         variance = scatter / self._gravity**2
+        variance += float(known @ known) / self._gravity**2
         if self._accel_bias_sigma is not None:
             variance += (self._accel_bias_sigma / self._gravity) ** 2
         return Level(tilt, variance)

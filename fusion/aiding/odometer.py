@@ -104,13 +104,14 @@ from typing import Literal
 import numpy as np
 from numpy.typing import NDArray
 from pydantic import Field, model_validator
+from scipy.spatial.transform import Rotation
 
 from fusion.aiding.reference_speed import ReferenceSpeed, reading_noise
 from fusion.aiding.zaru import ZeroAngularRate
 from fusion.attitude import dcm_from_euler, skew
 from fusion.encoder import reading_intervals
 from fusion.error_model import ATTITUDE, GYRO_BIAS, KNOWN_SIGMAS, VELOCITY, StateBlock
-from fusion.lock import Reacquisition, RestLevel, agrees
+from fusion.lock import Level, Reacquisition, RestLevel, agrees
 from fusion.plugin import Measurement, MeasurementContext, MissingStream, Plugin, PluginOptions
 from fusion.recording import Recording
 
@@ -542,12 +543,17 @@ class Odometer(Plugin):
         return agrees(velocity, ctx.covariance)
 
     def reacquire(self, t: float, ctx: MeasurementContext) -> Reacquisition | None:
-        """At a standstill the encoder shows (mode ``odometer``), for a filter that rejected
-        every reading of it: the machine stands, whatever the SINS says.
+        """What the encoder says alone (mode ``odometer``), for a filter that rejected every
+        reading of it: the machine stands, or moves along its travel axis at the speed it reads,
+        whatever the SINS says.
 
-        - Velocity zero, with the encoder's speed variance.
+        - Velocity: zero at a standstill, with the encoder's speed variance; in motion the
+          reading along the travel axis, less the estimated scale and slip, at the levelled
+          attitude (:meth:`_travel_velocity`).
         - The tilt from the accelerometers over the last ``rest_guard_s``
-          (:class:`fusion.lock.RestLevel`).
+          (:class:`fusion.lock.RestLevel`), in motion less the acceleration the readings show
+          along the travel axis (a shearer's haulage accelerates by centimetres per second
+          squared: its specific force is gravity to within a few tenths of a degree).
         - The position at the last reading the filter agreed with (χ² within
           :data:`fusion.lock.FIX_GATE_PROBABILITY`; the first reading of the run if none did),
           with that reading's covariance plus ``(d (1 + 3 σ_k))²/3`` per axis for the travel d
@@ -559,29 +565,63 @@ class Odometer(Plugin):
         2700 °/h against 720 °/h: levelled every 3 s, 25 m off after 150 s). But the inflation
         catches up with a velocity error that grows by g·tilt every second only by chance: a
         SINS that starts at rest on a pitch 3.9° off at a σ of 0.4° coasted 900 km
-        (docs/design/2026-12-02-initial-attitude-covariance.md). None while the machine moves,
-        before any reading, and at a lock's first loss since the filter last agreed."""
+        (docs/design/2026-12-02-initial-attitude-covariance.md), and one that lost its tilt
+        while hauling (a degraded IMU coasting through a dropout into a slip) 14 km in 150 s
+        (docs/design/2026-12-04-confident-after-an-odometer-dropout.md). None before any
+        reading and at a lock's first loss since the filter last agreed."""
         if not self.use_speed or self._agreed is None:
             return None
         odometer_t = self.recording.odometer.t  # type: ignore[union-attr]
         index = int(np.searchsorted(odometer_t, t, side="right")) - 1
-        if index < 0 or not self.at_rest[index]:
+        if index < 0:
             return None
         if self._lost_at is None or self._lost_at < self._agreed[0]:
             self._lost_at = index  # a first loss: the inflation's turn
             return None
-        level = self._rest_level.over(t - self.options.rest_guard_s, t, ctx.c_b_n, ctx.accel_bias)
+        start = t - self.options.rest_guard_s
+        resting = bool(self.at_rest[index])
+        speed, acceleration = (0.0, 0.0) if resting else self._haulage(index, start, ctx)
+        along = self.c_b_m.T @ np.array([0.0, 1.0, 0.0])  # the travel axis, body frame
+        level = self._rest_level.over(start, t, ctx.c_b_n, ctx.accel_bias, acceleration * along)
         if level is None:
             return None
+        velocity, velocity_covariance = (
+            (np.zeros(3), self.options.sigma_speed_mps**2 * np.eye(3))
+            if resting
+            else self._travel_velocity(speed, level, ctx)
+        )
         since, position, covariance = self._agreed
         reach = (self._travel[index] - self._travel[since]) * (1.0 + 3.0 * self.options.scale_sigma)
         return Reacquisition(
-            position,
-            covariance + reach**2 / 3.0 * np.eye(3),
-            np.zeros(3),
-            self.options.sigma_speed_mps**2 * np.eye(3),
-            level,
+            position, covariance + reach**2 / 3.0 * np.eye(3), velocity, velocity_covariance, level
         )
+
+    def _haulage(self, index: int, start: float, ctx: MeasurementContext) -> tuple[float, float]:
+        """The speed (m/s) of reading ``index`` less the estimated scale and slip, and the
+        acceleration (m/s²) the readings show from the last one at or before ``start`` to it
+        (zero with none before it), for a re-acquisition in motion."""
+        odometer_t = self.recording.odometer.t  # type: ignore[union-attr]
+        scale = float(np.sum(ctx.x[self._scale_states(ctx)]))  # δk_D and the slip s
+        speed = float(self.speed[index]) / (1.0 + scale)
+        before = min(int(np.searchsorted(odometer_t, start, side="right")) - 1, index - 1)
+        if before < 0:
+            return speed, 0.0
+        change = speed - float(self.speed[before]) / (1.0 + scale)
+        return speed, change / float(odometer_t[index] - odometer_t[before])
+
+    def _travel_velocity(
+        self, speed: float, level: Level, ctx: MeasurementContext
+    ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """The ENU velocity of a machine moving at ``speed`` along its travel axis, at the
+        nominal attitude turned by ``level``'s tilt, and its covariance: the configured speed,
+        lateral and vertical σ, the speed's also ``(3 σ_k s)²/3`` for the scale's prior."""
+        c_m_n = Rotation.from_rotvec(level.attitude_error).as_matrix() @ ctx.c_b_n @ self.c_b_m.T
+        options = self.options
+        scale_variance = (3.0 * options.scale_sigma * speed) ** 2 / 3.0
+        sigmas = [options.sigma_lateral_mps, options.sigma_speed_mps, options.sigma_vertical_mps]
+        variances = np.square(sigmas) + np.array([0.0, scale_variance, 0.0])
+        velocity = c_m_n @ np.array([0.0, speed, 0.0])
+        return velocity, c_m_n @ np.diag(variances) @ c_m_n.T
 
     def _velocity(self, index: int, ctx: MeasurementContext) -> Measurement:
         """Residual of the SINS velocity in m against the odometer and the constraint."""
