@@ -624,9 +624,10 @@ class Odometer(Plugin):
         """The slip or scale jumped beyond its bound (the readings, hundreds of percent off the
         SINS, are no slip of a wheel): the SINS is lost, and this stands for the lock's first
         loss, so that :meth:`reacquire` restarts from the encoder at once. An inflation would
-        take its factor from an innovation the filter has already taken in."""
-        odometer_t = self.recording.odometer.t  # type: ignore[union-attr]
-        self._lost_at = int(np.searchsorted(odometer_t, t, side="right")) - 1
+        take its factor from an innovation the filter has already taken in. Asked during this
+        plugin's own update (:meth:`fusion.engine.Engine._beyond_bound`): the reading is the one
+        :meth:`measure` just read."""
+        self._lost_at = self._index
 
     def _haulage(self, index: int, start: float, ctx: MeasurementContext) -> tuple[float, float]:
         """The speed (m/s) of reading ``index`` less the estimated scale and slip, and the
