@@ -582,10 +582,9 @@ class Engine:
         ]
         self._last_held = [-math.inf] * len(self.plugins)
         self._at_bound = {}
+        self._watched = any(lock is not None for lock in self._locks)  # else _holders is unasked
+        self._needs_holds = self._watched or cfg.architecture == "federated"  # FederatedFilter
         states = jump_states(self.layout)
-        watched = any(lock is not None for lock in self._locks)
-        # _holders is asked by a lock and by a jump beyond its bound (_beyond_bound)
-        self._needs_holds = watched or bool(states) or cfg.architecture == "federated"
         jumps = (
             JumpDetector(self.layout, states, cfg.jump_detection, self._tell_owner)
             if states
@@ -1114,29 +1113,10 @@ class Engine:
             events = [jumps.observe(t, bank, src, signature, res)]
             events += [jumps.rest(t, bank, name) for name in m.at_rest]
             bank.faults.extend(e for e in events if e is not None)
-            if jumps.refused is not None:
-                self._beyond_bound(src, jumps.refused, t, sins, bank)
             if res.accepted and bank.in_fusion(src) and np.any(rows[:, layout.slice(POSITION)]):
                 jumps.anchor(t, bank)  # a position source agrees with the fused filter
         logs[plugin.name].append(t, res, m.suspect)
         return res.accepted
-
-    def _beyond_bound(
-        self, src: int, state: JumpState, t: float, sins: Strapdown, bank: FilterBank
-    ) -> None:
-        """Re-acquire from ungated plugin ``src`` (:meth:`_reacquire`) when its update showed
-        a jump of its own ``state`` beyond the state's physical bound (a wheel slipping by
-        +450 %) and no other plugin holds the filter: no wheel does that, the SINS velocity
-        is off. A gated plugin has its lock monitor for this; an ungated one, left to its jump
-        detector so that a slip's readings reach it, otherwise kept taking in readings at a
-        NIS of 10³ with no lost lock (a degraded IMU after an odometer dropout: 60σ off;
-        docs/design/2026-12-04-confident-after-an-odometer-dropout.md)."""
-        if self.gates[src] is not None or self._holders(src, t):
-            return
-        if not any(b.name == state.block for b in self.plugin_blocks[src]):
-            return
-        self.plugins[src].jump_beyond_bound(state.name, t)
-        self._reacquire(src, t, sins, bank)
 
     def _kalman_update(
         self,

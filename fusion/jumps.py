@@ -241,10 +241,6 @@ class JumpDetector:
         self._anchored = np.empty(0, bool)  # per column: an anchor (unseen_jump), not tested
         self._last_opened = -np.inf
         self._last_anchored = -np.inf
-        self.refused: JumpState | None = None
-        """The state of a jump the last :meth:`observe` found beyond its physical bound (None:
-        none): the innovations a slip of the wheel cannot explain are the SINS's error
-        (:meth:`fusion.engine.Engine._beyond_bound`)."""
         self._at_rest = np.array([s.rest is not None for s in states])
         self._rest = np.array([np.nan if s.rest is None else s.rest for s in states])
         self._direction = np.array([s.leaves_rest for s in states])
@@ -349,7 +345,6 @@ class JumpDetector:
         result: UpdateResult,
     ) -> FaultEvent | None:
         """Add one accepted update to every hypothesis; take in a jump that passes the test."""
-        self.refused = None
         if not result.accepted or not self._onset.size or not bank.in_fusion(plugin):
             return None
         g = whiten(result.whitening, signature)
@@ -371,7 +366,6 @@ class JumpDetector:
         before = float(bank.estimate()[0][state.index])
         if not _within_bound(state, before + jump):
             self._keep(self._state != k, bank)  # its hypotheses start afresh
-            self.refused = state
             reason = (
                 f"a jump by {jump:+.4g} at {onset:.1f} s not taken in: {before + jump:+.4g} is"
                 f" beyond the state's physical bound ±{state.bound:g}"

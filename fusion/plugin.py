@@ -276,14 +276,6 @@ class Plugin(ABC):
         ignored."""
         return None
 
-    def jump_beyond_bound(self, state: str, t: float) -> None:
-        """At ``t`` the jump detector found a jump of ``state``, one of this plugin's
-        ``may_jump`` states, beyond the state's physical bound, while no other plugin held the
-        filter: the SINS, not the sensor, is off, and the engine asks :meth:`reacquire` next
-        (:meth:`fusion.engine.Engine._beyond_bound`). For a plugin whose re-acquisition waits
-        for an inflation first (the odometer); default: ignored."""
-        return None
-
     def start_run(self) -> None:
         """Forget what a run over the recording learned (adaptive noise, stored points,
         flags): the engine calls it before its first epoch, so that one plugin serves any

@@ -356,13 +356,6 @@ class TravelWindow:
         return mean
 
 
-AGREEMENT_PROBATION = 10
-"""Readings in a row the filter must agree with, after one it did not, before the position at
-them is one to go back to (:meth:`Odometer._may_agree`): as many as a lost lock needs
-(``filter.lock_min_updates``), twice the jump detector's ``min_updates``, so that a lost lock
-or a jump refused beyond its bound finds the position from before the readings that lost it."""
-
-
 class Odometer(Plugin):
     """Odometer speed along the travel axis plus zero lateral and vertical velocity."""
 
@@ -431,7 +424,6 @@ class Odometer(Plugin):
         self._column_window.clear()
         self._index = 0
         self._agreed: tuple[int, NDArray[np.float64], NDArray[np.float64]] | None = None
-        self._agreeing, self._disagreed = 0, False  # readings agreed in a row; since one did not
         self._lost_at: int | None = None  # the reading of the last lost lock left to inflation
         self.reference.start_run()
         if self.zero_rate is not None:
@@ -542,29 +534,13 @@ class Odometer(Plugin):
 
     def _may_agree(self, index: int, velocity: Measurement, ctx: MeasurementContext) -> bool:
         """Whether reading ``index`` is a newer position to go back to (:meth:`reacquire`): the
-        filter agrees with it; after a reading it did not agree with, it has agreed with the
-        last :data:`AGREEMENT_PROBATION` in a row; and it is not a later reading of a
-        standstill whose earlier one the filter already agreed with (the machine has not moved
-        since; a filter whose inflated variances admit a reading after its SINS drifted agrees
-        with a worse one).
-
-        The probation: the encoder measures velocity, so the filter's agreement says nothing
-        of a position that readings it did not agree with moved. An ungated odometer's first
-        readings after a dropout, at a NIS of 10³, moved a degraded SINS 38 m at a σ of 2.4 m
-        through the coast's velocity–position correlation, its next readings agreed, and the
-        re-acquisition 8 s later went back to that position
-        (docs/design/2026-12-04-confident-after-an-odometer-dropout.md)."""
+        filter agrees with it, and it is not a later reading of a standstill whose earlier one
+        the filter already agreed with (the machine has not moved since; a filter whose
+        inflated variances admit a reading after its SINS drifted agrees with a worse one)."""
         assert self._agreed is not None
-        if not agrees(velocity, ctx.covariance):
-            self._agreeing, self._disagreed = 0, True
-            return False
-        self._agreeing += 1
-        if self._disagreed and self._agreeing < AGREEMENT_PROBATION:
-            return False
         if self._agreed[0] >= self._still_since[index]:
             return False
-        self._disagreed = False
-        return True
+        return agrees(velocity, ctx.covariance)
 
     def reacquire(self, t: float, ctx: MeasurementContext) -> Reacquisition | None:
         """What the encoder says alone (mode ``odometer``), for a filter that rejected every
@@ -619,15 +595,6 @@ class Odometer(Plugin):
         return Reacquisition(
             position, covariance + reach**2 / 3.0 * np.eye(3), velocity, velocity_covariance, level
         )
-
-    def jump_beyond_bound(self, state: str, t: float) -> None:
-        """The slip or scale jumped beyond its bound (the readings, hundreds of percent off the
-        SINS, are no slip of a wheel): the SINS is lost, and this stands for the lock's first
-        loss, so that :meth:`reacquire` restarts from the encoder at once. An inflation would
-        take its factor from an innovation the filter has already taken in. Asked during this
-        plugin's own update (:meth:`fusion.engine.Engine._beyond_bound`): the reading is the one
-        :meth:`measure` just read."""
-        self._lost_at = self._index
 
     def _haulage(self, index: int, start: float, ctx: MeasurementContext) -> tuple[float, float]:
         """The speed (m/s) of reading ``index`` less the estimated scale and slip, and the
