@@ -27,12 +27,32 @@ from numpy.typing import NDArray
 
 from fusion.recording import OdometerData
 
+MISSING_READINGS_FACTOR = 1.5
+"""A reading further than this many median intervals from the previous one has rows missing
+before it (one missing row doubles the interval; a logger's jitter stays well within half)."""
+
 
 def reading_intervals(t: NDArray[np.float64]) -> NDArray[np.float64]:
     """Each reading's interval, from the previous reading to it (a reading is the mean speed
     over its interval); the first one, which has no predecessor, is taken as the median
-    interval. Needs at least two readings."""
+    interval. Needs at least two readings. Across missing rows (:func:`after_missing_readings`)
+    the reading is held over the whole gap: the travel there was not counted, and this is the
+    zero-order estimate of it."""
     return np.diff(t, prepend=t[0] - float(np.median(np.diff(t))))
+
+
+def after_missing_readings(t: NDArray[np.float64]) -> NDArray[np.bool_]:
+    """Per reading, whether rows are missing before it: its interval from the previous reading
+    is longer than :data:`MISSING_READINGS_FACTOR` median intervals. Missing rows are absent
+    and every row is still the mean over its own sample interval (RECORDING_FORMAT.md), so
+    such a reading is no mean since the previous one (a 60-s dropout's first reading taken as
+    the mean over the dropout moved a coasting SINS's velocity by its mean error and set its σ
+    to the encoder's: 1.3 m/s off at a σ of 1 cm/s)."""
+    after = np.zeros(t.size, dtype=bool)
+    if t.size > 1:
+        intervals = np.diff(t)
+        after[1:] = intervals > MISSING_READINGS_FACTOR * float(np.median(intervals))
+    return after
 
 
 def combine_readings(odometer: OdometerData, max_rate_hz: float) -> OdometerData:

@@ -109,7 +109,7 @@ from scipy.spatial.transform import Rotation
 from fusion.aiding.reference_speed import ReferenceSpeed, reading_noise
 from fusion.aiding.zaru import ZeroAngularRate
 from fusion.attitude import dcm_from_euler, skew
-from fusion.encoder import reading_intervals
+from fusion.encoder import after_missing_readings, reading_intervals
 from fusion.error_model import ATTITUDE, GYRO_BIAS, KNOWN_SIGMAS, VELOCITY, StateBlock
 from fusion.lock import Level, Reacquisition, RestLevel, agrees
 from fusion.plugin import Measurement, MeasurementContext, MissingStream, Plugin, PluginOptions
@@ -409,6 +409,12 @@ class Odometer(Plugin):
             if self.use_speed and recording.odometer is not None and self.speed.size > 1
             else np.zeros(self.speed.size)
         )
+        self._after_gap = (
+            after_missing_readings(recording.odometer.t)
+            if recording.odometer is not None
+            else np.zeros(self.speed.size, bool)
+        )
+        """Per reading, whether rows are missing before it: its SINS velocity is the epoch's."""
         self._rest_level = RestLevel(recording)
         still = self.still if self.use_speed else np.zeros(self.speed.size, bool)
         readings = np.arange(still.size)
@@ -751,12 +757,15 @@ class Odometer(Plugin):
 
     def _mean_velocity(self, index: int, ctx: MeasurementContext) -> NDArray[np.float64]:
         """Mean nominal velocity over the reading's interval, from the travel at the previous
-        reading; the velocity at the epoch when that reading was not measured."""
+        reading; the velocity at the epoch when that reading was not measured or when rows are
+        missing before this one (:func:`fusion.encoder.after_missing_readings`: the reading is
+        the mean over its own interval, not over the gap, whose start the SINS travel does not
+        hold)."""
         if not self.use_speed:
             return ctx.velocity
         travel = self.reference.travel  # the SINS travel at every reading measured so far
         travel[index] = ctx.travel
-        if index == 0 or np.isnan(travel[index - 1, 0]):
+        if index == 0 or np.isnan(travel[index - 1, 0]) or self._after_gap[index]:
             return ctx.velocity
         t = self.recording.odometer.t  # type: ignore[union-attr]
         mean: NDArray[np.float64] = (ctx.travel - travel[index - 1]) / (t[index] - t[index - 1])
