@@ -582,8 +582,8 @@ class Engine:
         ]
         self._last_held = [-math.inf] * len(self.plugins)
         self._at_bound = {}
-        self._watched = any(lock is not None for lock in self._locks)  # else _holders is unasked
-        self._needs_holds = self._watched or cfg.architecture == "federated"  # FederatedFilter
+        watched = any(lock is not None for lock in self._locks)  # else _holders is unasked
+        self._needs_holds = watched or cfg.architecture == "federated"  # FederatedFilter
         states = jump_states(self.layout)
         jumps = (
             JumpDetector(self.layout, states, cfg.jump_detection, self._tell_owner)
