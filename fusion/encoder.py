@@ -25,7 +25,7 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import NDArray
 
-from fusion.recording import OdometerData
+from fusion.recording import OdometerData, long_intervals
 
 MISSING_READINGS_FACTOR = 1.5
 """A reading further than this many median intervals from the previous one has rows missing
@@ -43,15 +43,14 @@ def reading_intervals(t: NDArray[np.float64]) -> NDArray[np.float64]:
 
 def after_missing_readings(t: NDArray[np.float64]) -> NDArray[np.bool_]:
     """Per reading, whether rows are missing before it: its interval from the previous reading
-    is longer than :data:`MISSING_READINGS_FACTOR` median intervals. Missing rows are absent
+    is longer than :data:`MISSING_READINGS_FACTOR` median intervals
+    (:func:`fusion.recording.long_intervals`, as the reader finds IMU gaps). Missing rows are absent
     and every row is still the mean over its own sample interval (RECORDING_FORMAT.md), so
     such a reading is no mean since the previous one (a 60-s dropout's first reading taken as
     the mean over the dropout moved a coasting SINS's velocity by its mean error and set its σ
     to the encoder's: 1.3 m/s off at a σ of 1 cm/s)."""
     after = np.zeros(t.size, dtype=bool)
-    if t.size > 1:
-        intervals = np.diff(t)
-        after[1:] = intervals > MISSING_READINGS_FACTOR * float(np.median(intervals))
+    after[1:] = long_intervals(t, MISSING_READINGS_FACTOR)[0]
     return after
 
 

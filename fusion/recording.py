@@ -1154,6 +1154,16 @@ def _median_interval(t: FloatArray) -> float | None:
     return float(np.median(d)) if d.size else None
 
 
+def long_intervals(t: FloatArray, multiple: float) -> tuple[npt.NDArray[np.bool_], float | None]:
+    """Per interval ``t[i] → t[i+1]``, whether it is longer than ``multiple`` median sample
+    intervals (rows missing before ``t[i+1]``: an IMU gap, an odometer dropout), and that
+    median (None, and nothing long, when no interval is positive)."""
+    median = _median_interval(t)
+    if median is None:
+        return np.zeros(max(t.size - 1, 0), dtype=bool), None
+    return np.diff(t) > multiple * median, median
+
+
 def _check_limit(
     values: FloatArray,
     lines: IntArray,
@@ -1242,12 +1252,10 @@ be that many intervals: time stamps are rounded decimals (a 4-sample gap at t = 
 
 def _imu_gaps(t: FloatArray) -> tuple[IntArray, float]:
     """Indices i with t[i+1] - t[i] longer than the gap threshold, and that threshold."""
-    median = _median_interval(t)
+    longer, median = long_intervals(t, MAX_IMU_GAP_INTERVALS + GAP_TOLERANCE)
     if median is None:
         return np.empty(0, dtype=np.int64), math.inf
-    limit = MAX_IMU_GAP_INTERVALS * median
-    longer = np.diff(t) > limit + GAP_TOLERANCE * median
-    return np.flatnonzero(longer).astype(np.int64), limit
+    return np.flatnonzero(longer).astype(np.int64), MAX_IMU_GAP_INTERVALS * median
 
 
 # --------------------------------------------------------------------------------------------

@@ -10,8 +10,10 @@ import numpy as np
 import pytest
 import yaml
 
+from fusion.aiding.odometer import Odometer, OdometerOptions
 from fusion.attitude import dcm_from_euler
 from fusion.config import load_config, load_config_data, parse_config
+from fusion.earth import normal_gravity
 from fusion.engine import Engine, _holds
 from fusion.error_model import GYRO_BIAS, POSITION, VELOCITY
 from fusion.kalman import KalmanFilter
@@ -22,13 +24,14 @@ from fusion.lock import (
     MAX_INFLATED_ATTITUDE_SIGMA,
     REACQUIRE,
     LockMonitor,
+    RestLevel,
     fading_factor,
     inflation_variances,
 )
 from fusion.metrics import interpolate_truth
-from fusion.recording import ImuData, Recording, read_recording
+from fusion.recording import ImuData, OdometerData, Recording, read_recording
 from fusion.sim.simulate import simulate
-from tests.plugin_support import layout_with, recording_meta
+from tests.plugin_support import layout_with, perturbed_context, recording_meta
 
 CONFIGS = Path(__file__).resolve().parents[1] / "configs"
 
@@ -205,9 +208,6 @@ def test_a_level_in_motion_takes_out_the_known_acceleration() -> None:
     """A level IMU (body = ENU) hauled at 0.05 m/s² along its x axis reads that acceleration
     beside gravity: taken for a standstill, it is a tilt of a/g (0.29°); with the acceleration
     known, the level is zero, and its variance grows by (a/g)² for how far it may have changed."""
-    from fusion.earth import normal_gravity
-    from fusion.lock import RestLevel
-
     acceleration = np.array([0.05, 0.0, 0.0])
     meta = recording_meta()
     gravity = float(normal_gravity(math.radians(meta.origin.lat_deg), meta.origin.height_m))
@@ -233,11 +233,6 @@ def test_an_odometer_in_motion_restarts_a_sins_that_lost_its_tilt() -> None:
     14.6 km at a σ of 1.3 km on a harsh world; docs/design/2026-12-04-confident-after-an-
     odometer-dropout.md.) Here a level IMU hauled north at 0.2 m/s; the SINS 1 m/s off and 5°
     tilted at 6 s."""
-    from fusion.aiding.odometer import Odometer, OdometerOptions
-    from fusion.earth import normal_gravity
-    from fusion.recording import OdometerData
-    from tests.plugin_support import perturbed_context
-
     meta = recording_meta(odometer={"rate_hz": 10.0})
     gravity = float(normal_gravity(math.radians(meta.origin.lat_deg), meta.origin.height_m))
     t_imu = np.arange(1, 1001) / 100.0
