@@ -709,6 +709,49 @@ def test_a_step_to_long_ranges_is_withheld_as_nlos_and_a_drift_is_not() -> None:
     assert not flags[3].any()
 
 
+def test_nlos_ends_on_a_filter_that_drifted_onto_it_only_when_the_ranges_fit() -> None:
+    """NLOS on every anchor while the filter coasts: once its σ has grown past the NLOS biases,
+    its drift can centre the innovations on the long ranges, and the CUSUM falls to zero. The
+    episode then ends only when the ranges of the last second fit one position: not while
+    they contradict each other (each read 0.3–2 m long, centred by the drift), and within a
+    window and two CUSUM runs once they read true again."""
+    rng = np.random.default_rng(29)
+    ids = list(ANCHORS_ENU)
+    tag = _true_tag()
+    true_ranges = np.array([np.linalg.norm(tag - np.array(ANCHORS_ENU[a])) for a in ids])
+    rounds = (100, 20, 300, 300)  # fitting, NLOS starts, NLOS under the drift, fitting again
+    n = 3 * np.array(rounds)
+    bias = rng.uniform(0.3, 2.0, n[1] + n[2])
+    lengthening = np.concatenate(
+        [np.zeros(n[0]), bias[: n[1]], bias[n[1] :] - 1.15, np.zeros(n[3])]
+    )
+    anchor = np.tile(np.arange(3), sum(rounds))
+    noisy = true_ranges[anchor] + lengthening + 0.05 * rng.standard_normal(anchor.size)
+    rec, plugin, ctx = _plugin_at_rest(
+        [(ids[k], float(r)) for k, r in zip(anchor, noisy, strict=True)],
+        UwbOptions(sigma_range_m=0.05),
+    )
+    assert rec.uwb is not None
+    coasted = np.zeros((ctx.layout.dim, ctx.layout.dim))
+    horizontal = ctx.layout.slice(POSITION).start + np.arange(2)
+    coasted[horizontal, horizontal] = 1.0  # σ 1 m east and north
+    withheld = []
+    for i in range(anchor.size):
+        at = replace(
+            ctx, t=float(rec.uwb.t[i]), covariance=coasted if i >= n[0] + n[1] else ctx.covariance
+        )
+        m = plugin.measure(i, at)
+        assert m is not None
+        withheld.append(m.withheld)
+    flags = np.split(np.array(withheld), np.cumsum(n)[:-1])
+    tail = int(np.flatnonzero(flags[3]).max()) + 1 if flags[3].any() else 0
+    print("withheld per segment:", [int(f.sum()) for f in flags], "of", n.tolist(), "tail", tail)
+    assert not flags[0].any()
+    assert flags[1][3:].all() and flags[2].all()
+    window = uwb_module.REACQUIRE_WINDOW_S / 0.01  # ranges
+    assert tail <= window + 3 * 2 * uwb_module.NLOS_CAP / uwb_module.NLOS_DRIFT
+
+
 def test_variational_bayes_restarts_from_the_prior_after_a_long_absence() -> None:
     """An anchor met again after an hour out of sight: exp(−3600/5) underflows, and the
     forgotten statistics restart from the prior instead of giving R = 0/0."""

@@ -58,7 +58,10 @@ Tightly coupled ranges (:class:`UwbRanges`)
     step tells them apart, and a drift stays the gate's and the lost lock's to answer. The
     CUSUM holds the anchor out while its ranges keep reading long, even once the filter's σ,
     grown without them, makes single NLOS ranges look like 2σ ones; after the NLOS it takes
-    some ``NLOS_CAP / NLOS_DRIFT`` (40) ranges that fit.
+    some ``NLOS_CAP / NLOS_DRIFT`` (40) ranges that fit. Once that σ exceeds the smallest NLOS
+    bias, the filter's own drift may centre the long ranges, and the CUSUM's end must be
+    confirmed by the ranges alone: those of the last second fitting one position with this
+    anchor's (:meth:`UwbRanges._contradicted`).
 
     Anchor exclusion (``anchor_exclusion``, on by default). An anchor surveyed metres from where
     it stands (or moved since) reads wrong for good, long or short, and no step starts it. Its
@@ -626,19 +629,11 @@ class UwbRanges(Plugin):
             return None
         anchors = self.anchors[index]
         guess, guess_covariance = prior
-        centre = anchors.mean(axis=0)
-        reach = float(np.max(ranges))
-        offset = guess - centre
-        start = centre + offset * min(1.0, reach / max(float(np.linalg.norm(offset)), 1e-9))
-        sigma = float(np.max(self.noise_sigma()))
-        options = self.options.least_squares.model_copy(update={"sigma_range_m": sigma})
-        height = self._face_height(start, arm_up)
-        found = _solutions(anchors, ranges, start, height, options, sigma)
-        if found and height is not None:  # the face's height where the fit put the tag
-            height = self._face_height(found[0][0], arm_up)
-            found = _solutions(anchors, ranges, found[0][0], height, options, sigma)
+        found, height = self._solutions(anchors, ranges, guess, arm_up)
         if not found:
             return None
+        sigma = float(np.max(self.noise_sigma()))
+        options = self.options.least_squares.model_copy(update={"sigma_range_m": sigma})
         margin = chi2_threshold(1, self.options.adaptive_screen_probability)
         candidates = _plausible(found, margin, guess)
         best, covariance, cost = candidates[0]
@@ -661,6 +656,29 @@ class UwbRanges(Plugin):
                 return None
         position, covariance, cost = candidates[kept]
         return position, covariance, cost, ranges.size + (height is not None) - 3
+
+    def _solutions(
+        self,
+        anchors: NDArray[np.float64],
+        ranges: NDArray[np.float64],
+        guess: NDArray[np.float64],
+        arm_up: float,
+    ) -> tuple[list[_Candidate], tuple[float, float] | None]:
+        """The Gauss–Newton solutions of ``ranges`` to ``anchors`` (:func:`_solutions`), started
+        from ``guess`` pulled to within the ranges' reach of the anchors' centre, and the face
+        height row they were solved with (:meth:`_face_height`, at the first solution)."""
+        centre = anchors.mean(axis=0)
+        reach = float(np.max(ranges))
+        offset = guess - centre
+        start = centre + offset * min(1.0, reach / max(float(np.linalg.norm(offset)), 1e-9))
+        sigma = float(np.max(self.noise_sigma()))
+        options = self.options.least_squares.model_copy(update={"sigma_range_m": sigma})
+        height = self._face_height(start, arm_up)
+        found = _solutions(anchors, ranges, start, height, options, sigma)
+        if found and height is not None:  # the face's height where the fit put the tag
+            height = self._face_height(found[0][0], arm_up)
+            found = _solutions(anchors, ranges, found[0][0], height, options, sigma)
+        return found, height
 
     def _face_height(self, tag: NDArray[np.float64], arm_up: float) -> tuple[float, float] | None:
         """The height row of a fix of a tag near ``tag``: the face line's height there plus
@@ -724,7 +742,7 @@ class UwbRanges(Plugin):
 
         nis = innovation * innovation / (predicted + current)
         fault = self._anchor_test(index, nis, prior)
-        if self.excluded[k] or self._in_nlos(index, k, innovation, predicted + current):
+        if self.excluded[k] or self._in_nlos(index, k, innovation, predicted + current, prior):
             variance = current + spread
             return Measurement(
                 np.array([z]),
@@ -747,7 +765,14 @@ class UwbRanges(Plugin):
             return self.options.sigma_range_m**2
         return float(self.beta[k] / self.alpha[k])
 
-    def _in_nlos(self, index: int, k: int, innovation: float, s: float) -> bool:
+    def _in_nlos(
+        self,
+        index: int,
+        k: int,
+        innovation: float,
+        s: float,
+        prior: Callable[[], tuple[tuple[NDArray[np.float64], NDArray[np.float64]], float]],
+    ) -> bool:
         """Whether range ``index`` of anchor ``k`` (innovation ``r̂ − ρ``, variance ``s``) is
         withheld as NLOS. Its whitened lengthening ``w = (ρ − r̂)/√s`` starts the anchor's NLOS
         by a step of :data:`NLOS_STEP` over the anchor's previous range; Page's one-sided
@@ -757,7 +782,14 @@ class UwbRanges(Plugin):
         then read long by only a few σ. Its reference k is half the smallest NLOS bias,
         ``max(NLOS_DRIFT, NLOS_SMALLEST_BIAS_M / (2√s))``: a filter a few centimetres off
         lengthens every range by a σ or two where σ is centimetres, and with k fixed at half a
-        σ its anchors never left NLOS (docs/design/2026-11-30-skids-taken-in.md)."""
+        σ its anchors never left NLOS (docs/design/2026-11-30-skids-taken-in.md).
+
+        Where √s exceeds the smallest NLOS bias, the CUSUM's zero is no evidence: the filter's
+        own drift, not the range, sets the sign of ``w``. The NLOS then ends only if the ranges
+        of the last :data:`REACQUIRE_WINDOW_S` do not contradict each other about this anchor
+        (:meth:`_contradicted`); otherwise the CUSUM starts again at the cap. Every anchor in
+        NLOS for 20 s, the filter's σ grown to a metre, its drift had ended one anchor's episode
+        and that range, 0.3–2 m long, moved the filter 1.7 m at a σ of 4 cm (harsh world 20)."""
         if not self.options.nlos_test:
             return False
         t = float(self.data.t[index])
@@ -769,10 +801,37 @@ class UwbRanges(Plugin):
         g = float(self.reads_long[k])  # > 0: the anchor is in NLOS
         if g > 0.0:
             drift = max(NLOS_DRIFT, NLOS_SMALLEST_BIAS_M / (2.0 * root))
-            self.reads_long[k] = min(NLOS_CAP, max(0.0, g + w - drift))
+            g = min(NLOS_CAP, max(0.0, g + w - drift))
+            if g == 0.0 and root > NLOS_SMALLEST_BIAS_M and self._contradicted(t, k, *prior()):
+                g = NLOS_CAP
+            self.reads_long[k] = g
         elif w >= NLOS_STEP and step >= NLOS_STEP:
             self.reads_long[k] = NLOS_CAP
         return bool(self.reads_long[k] > 0.0)
+
+    def _contradicted(
+        self,
+        t: float,
+        k: int,
+        prior: tuple[NDArray[np.float64], NDArray[np.float64]],
+        arm_up: float,
+    ) -> bool:
+        """Whether the ranges of the last :data:`REACQUIRE_WINDOW_S` to ``t`` contradict anchor
+        ``k``'s: their fit leaves it out (:meth:`_raim`), or, from three anchors and more, no
+        position fits them all (:meth:`_consistent`; Gauss–Newton finds none on ranges that
+        contradict each other). Ranges of fewer anchors, or that fit a point and its mirror
+        image, contradict nothing."""
+        found = self._raim(t - REACQUIRE_WINDOW_S, t, prior, arm_up)
+        if found is not None:
+            return found[1] == k
+        lo = int(np.searchsorted(self.data.t, t - REACQUIRE_WINDOW_S, side="right"))
+        hi = int(np.searchsorted(self.data.t, t, side="right"))
+        index, ranges = self.data.anchor_index[lo:hi], self.data.range[lo:hi]
+        if np.unique(index).size < 3:
+            return False
+        solutions, height = self._solutions(self.anchors[index], ranges, prior[0], arm_up)
+        dof = ranges.size + (height is not None) - 3
+        return not any(self._consistent((p, c, cost, dof)) for p, c, cost in solutions)
 
     def _count_short(self, index: int, k: int, innovation: float, s: float) -> None:
         """Track how long anchor ``k``'s ranges have read short of the filter's distance by
