@@ -520,10 +520,7 @@ class UwbRanges(Plugin):
         an anchor surveyed metres from where it stands must not restart a filter that is right
         (docs/design/2026-11-30-unusual-recordings.md).
         """
-        lo = int(np.searchsorted(self.data.t, t0, side="right"))
-        hi = int(np.searchsorted(self.data.t, t1, side="right"))
-        index = self.data.anchor_index[lo:hi]
-        ranges = self.data.range[lo:hi]
+        index, ranges = self._window(t0, t1)
         fit = self._window_fit(index, ranges, prior, arm_up)
         if fit is not None and self._consistent(fit):
             return fit, None
@@ -534,6 +531,12 @@ class UwbRanges(Plugin):
             if subset is not None and self._consistent(subset):
                 fits.append((subset, int(k)))
         return fits[0] if len(fits) == 1 else None
+
+    def _window(self, t0: float, t1: float) -> tuple[NDArray[np.int64], NDArray[np.float64]]:
+        """The anchor indices and ranges of the rows in (t0, t1]."""
+        lo = int(np.searchsorted(self.data.t, t0, side="right"))
+        hi = int(np.searchsorted(self.data.t, t1, side="right"))
+        return self.data.anchor_index[lo:hi], self.data.range[lo:hi]
 
     def _anchor_test(
         self,
@@ -787,9 +790,8 @@ class UwbRanges(Plugin):
         Where √s exceeds the smallest NLOS bias, the CUSUM's zero is no evidence: the filter's
         own drift, not the range, sets the sign of ``w``. The NLOS then ends only if the ranges
         of the last :data:`REACQUIRE_WINDOW_S` do not contradict each other about this anchor
-        (:meth:`_contradicted`); otherwise the CUSUM starts again at the cap. Every anchor in
-        NLOS for 20 s, the filter's σ grown to a metre, its drift had ended one anchor's episode
-        and that range, 0.3–2 m long, moved the filter 1.7 m at a σ of 4 cm (harsh world 20)."""
+        (:meth:`_contradicted`); otherwise the CUSUM starts again at the cap
+        (docs/design/2026-11-29-nlos-test.md, "an NLOS episode ended by the filter's drift")."""
         if not self.options.nlos_test:
             return False
         t = float(self.data.t[index])
@@ -824,9 +826,7 @@ class UwbRanges(Plugin):
         found = self._raim(t - REACQUIRE_WINDOW_S, t, prior, arm_up)
         if found is not None:
             return found[1] == k
-        lo = int(np.searchsorted(self.data.t, t - REACQUIRE_WINDOW_S, side="right"))
-        hi = int(np.searchsorted(self.data.t, t, side="right"))
-        index, ranges = self.data.anchor_index[lo:hi], self.data.range[lo:hi]
+        index, ranges = self._window(t - REACQUIRE_WINDOW_S, t)
         if np.unique(index).size < 3:
             return False
         solutions, height = self._solutions(self.anchors[index], ranges, prior[0], arm_up)
