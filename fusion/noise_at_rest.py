@@ -39,13 +39,14 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, replace
+from typing import NamedTuple
 
 import numpy as np
 from numpy.typing import NDArray
 
 from fusion.config import ImuTuning
 from fusion.error_model import ImuNoise
-from fusion.recording import Recording
+from fusion.recording import ImuData, Recording
 
 WINDOW_S = 20.0
 """Length of the window at the recording's start (s): 2 000 samples at 100 Hz, a σ known to
@@ -129,22 +130,46 @@ def whiteness(d: NDArray[np.float64], lags: int = WHITE_LAGS) -> NDArray[np.floa
     return rho
 
 
+class StartWindow(NamedTuple):
+    """The IMU's first :data:`WINDOW_S` seconds (:func:`start_window`)."""
+
+    samples: NDArray[np.float64]
+    """Gyro then accelerometer axes (samples × 6)."""
+    white: NDArray[np.float64]
+    """Per axis, σ̂_white of one sample (module docstring)."""
+    rate_hz: float
+    reason: str
+    """Why the window is not at rest (empty when it is)."""
+
+
+def start_window(imu: ImuData) -> StartWindow:
+    """The first :data:`WINDOW_S` seconds of ``imu``, and whether it is at rest there: enough
+    samples, noise on every axis, and no axis spread about its median beyond
+    :data:`AT_REST_RATIO` × its σ̂_white (module docstring)."""
+    window = imu.t < imu.t[0] + WINDOW_S
+    samples = np.hstack([imu.gyro[window], imu.accel[window]])
+    if int(window.sum()) < MIN_SAMPLES or imu.t[-1] - imu.t[0] < WINDOW_S:
+        reason = f"fewer than {MIN_SAMPLES} samples in the first {WINDOW_S:g} s"
+        return StartWindow(samples, np.full(6, np.nan), math.nan, reason)
+    white = robust_sigma(np.diff(samples, axis=0)) / math.sqrt(2.0)  # per sample
+    rate = 1.0 / float(np.median(np.diff(imu.t[window])))
+    reason = ""
+    if not np.all(white > 0):
+        reason = "an axis shows no noise (quantized below its resolution)"
+    elif np.any(robust_sigma(samples) > AT_REST_RATIO * white):
+        reason = f"the IMU is not at rest in the first {WINDOW_S:g} s"
+    return StartWindow(samples, white, rate, reason)
+
+
 def measure(recording: Recording) -> RestNoise:
     """The factors of the window at the recording's start, or why there are none."""
-    imu, spec = recording.imu, recording.meta.imu.spec
+    spec = recording.meta.imu.spec
     if spec is None or not spec.gyro_arw_deg_rth or not spec.accel_vrw_mg_rthz:
         return RestNoise(reason="meta.yaml states no white noise to compare with")
-    window = imu.t < imu.t[0] + WINDOW_S
-    if int(window.sum()) < MIN_SAMPLES or imu.t[-1] - imu.t[0] < WINDOW_S:
-        return RestNoise(reason=f"fewer than {MIN_SAMPLES} samples in the first {WINDOW_S:g} s")
-    samples = np.hstack([imu.gyro[window], imu.accel[window]])
-    differences = np.diff(samples, axis=0)
-    white = robust_sigma(differences) / math.sqrt(2.0)  # per sample
-    if not np.all(white > 0):
-        return RestNoise(reason="an axis shows no noise (quantized below its resolution)")
-    if np.any(robust_sigma(samples) > AT_REST_RATIO * white):
-        return RestNoise(reason=f"the IMU is not at rest in the first {WINDOW_S:g} s")
-    if np.any(np.abs(whiteness(differences)) > WHITE_CORRELATION):
+    start = start_window(recording.imu)
+    if start.reason:
+        return RestNoise(reason=start.reason)
+    if np.any(np.abs(whiteness(np.diff(start.samples, axis=0))) > WHITE_CORRELATION):
         return RestNoise(reason=f"the IMU's noise in the first {WINDOW_S:g} s is not white")
     stated = ImuNoise.from_datasheet(
         gyro_arw_deg_rth=spec.gyro_arw_deg_rth,
@@ -152,10 +177,10 @@ def measure(recording: Recording) -> RestNoise:
         gyro_bias_deg_h=0.0,
         accel_bias_mg=0.0,
     )
-    root_rate = math.sqrt(1.0 / float(np.median(np.diff(imu.t[window]))))
+    root_rate = math.sqrt(start.rate_hz)
     return RestNoise(
-        gyro_factor=float(np.median(white[:3]) / (stated.gyro_arw * root_rate)),
-        accel_factor=float(np.median(white[3:]) / (stated.accel_vrw * root_rate)),
+        gyro_factor=float(np.median(start.white[:3]) / (stated.gyro_arw * root_rate)),
+        accel_factor=float(np.median(start.white[3:]) / (stated.accel_vrw * root_rate)),
     )
 
 
