@@ -112,6 +112,12 @@ class ImuTuning(_Strict):
         " 20 s where the IMU is at rest there and its noise is white and over 1.5× its datasheet's"
         " (fusion.noise_at_rest); never lowers them, and leaves a figure set here alone",
     )
+    bias_at_rest: bool = Field(
+        True,
+        description="raise the turn-on bias figures to the biases measured over the recording's"
+        " first 20 s where the IMU is at rest there and its datasheet's do not cover them at"
+        " 99.9 % (fusion.bias_at_rest); never lowers them, and leaves a figure set here alone",
+    )
     noise_scale: float = _within(
         1.0,
         0.01,

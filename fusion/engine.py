@@ -18,7 +18,9 @@ optional in the format) is left out with a warning, unless its block says ``requ
 the run uses the configuration as it stands for this recording (:func:`present_plugins`),
 and :attr:`RunResult.left_out` says what was left out. An IMU whose white noise at rest, over
 the recording's first seconds, is grossly worse than its datasheet's gives the filter the
-measured figures instead (:mod:`fusion.noise_at_rest`, :attr:`RunResult.rest_noise`).
+measured figures instead (:mod:`fusion.noise_at_rest`, :attr:`RunResult.rest_noise`); one whose
+turn-on bias there lies beyond what its datasheet's covers gives the filter, the ZUPT detector
+and the ZARU the measured magnitude (:mod:`fusion.bias_at_rest`, :attr:`RunResult.rest_bias`).
 
 The error-state estimates live in a filter bank (:mod:`fusion.filter_bank`): one centralized
 Kalman filter, or the federated master of :mod:`fusion.federated` whose local filters are index
@@ -39,6 +41,7 @@ import scipy.linalg
 from numpy.typing import NDArray
 
 from fusion import attitude
+from fusion.bias_at_rest import RestBias, with_bias_at_rest
 from fusion.config import ConfigError, FusionConfig, ImuTuning
 from fusion.covariance_analysis import CovarianceAnalysis
 from fusion.dead_reckoning import dead_reckon
@@ -141,6 +144,9 @@ class RunResult:
     rest_noise: RestNoise = field(default_factory=RestNoise)
     """The IMU's white noise measured at rest at the start against its datasheet, and the
     figures the filter took from it (:mod:`fusion.noise_at_rest`)."""
+    rest_bias: RestBias = field(default_factory=RestBias)
+    """The IMU's turn-on biases measured at rest at the start against its datasheet, and the
+    figures the filter took from them (:mod:`fusion.bias_at_rest`)."""
     left_out: tuple[str, ...] = ()
     """The configured plugins the run went without, each with why: the recording lacks its
     stream (:func:`present_plugins`). ``config`` has them disabled."""
@@ -462,6 +468,11 @@ class Engine:
             recording, self.rest_noise = with_noise_at_rest(recording, config.imu)
             if self.rest_noise.taken:
                 _log.warning("IMU noise at rest: %s", self.rest_noise.describe())
+        self.rest_bias = RestBias(reason="imu.bias_at_rest is off")
+        if config.imu.bias_at_rest:
+            recording, self.rest_bias = with_bias_at_rest(recording, config.imu)
+            if self.rest_bias.taken:
+                _log.warning("IMU bias at rest: %s", self.rest_bias.describe())
         screened, self.screening = screen_recording(recording, config.screening)
         rate = config.streams.odometer_max_rate_hz
         if screened.odometer is not None and rate is not None:
@@ -724,6 +735,7 @@ class Engine:
             smoother_kept_forward=dict(smoother.kept_forward) if smoother is not None else {},
             screening=self.screening,
             rest_noise=self.rest_noise,
+            rest_bias=self.rest_bias,
             left_out=tuple(self.left_out.values()),
             observability=observed.report(tracked),
             states=recorder.history(solution, self.frame) if recorder is not None else None,
@@ -1000,6 +1012,7 @@ class Engine:
             recording_name=self.recording.meta.name,
             screening=self.screening,
             rest_noise=self.rest_noise,
+            rest_bias=self.rest_bias,
             left_out=tuple(self.left_out.values()),
         )
 

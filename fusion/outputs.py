@@ -88,6 +88,7 @@ def write_outputs(
         }
         metrics["screening"] = result.screening.to_dict()
         metrics["imu_noise_at_rest"] = result.rest_noise.to_dict()
+        metrics["imu_bias_at_rest"] = result.rest_bias.to_dict()
         metrics["left_out"] = {"plugins": list(result.left_out)}
         if result.smoothed is not None:
             metrics["smoother"] = {
@@ -202,6 +203,8 @@ def summary(result: RunResult, recording: Recording) -> str:
     lines += [f"left out   {reason}" for reason in result.left_out]
     if result.rest_noise.taken:
         lines.append(f"IMU noise  {result.rest_noise.describe()}")
+    if result.rest_bias.taken:
+        lines.append(f"IMU bias   {result.rest_bias.describe()}")
     lines += [
         f"screened   {entry.describe()}" for entry in result.screening.streams if entry.rejected
     ]

@@ -18,7 +18,9 @@ rest ``‖f̃‖ = ‖g + b_a + n_a‖ ≈ g + b_a,z + n_a,z`` (horizontal error
 with ``g`` the WGS84 normal gravity at the recording origin, and ``‖ω̃‖ ≤ Ω_ie + ‖b_g‖ + ‖n_g‖``.
 The constant biases (datasheet 1σ ``accel_bias_mg``, ``gyro_bias_deg_h``) are covered at
 99.9 % — a bias outside the band would hide every stop, and the median cannot repair a
-constant offset. The white noise of one sample (``σ = N/√Δt`` from ``accel_vrw_mg_rthz``,
+constant offset (a unit whose bias at a start at rest lies beyond the datasheet's has the
+datasheet's figure raised to it before the band is drawn: :mod:`fusion.bias_at_rest`).
+The white noise of one sample (``σ = N/√Δt`` from ``accel_vrw_mg_rthz``,
 ``gyro_arw_deg_rth`` and the sample rate) is covered only at 90 % (two-sided normal for the
 accelerometer, the χ(3) quantile for the gyro norm): the median of ``l`` samples turns a
 stationary label into "moving" only when more than half of them are false alarms (for l = 51,
