@@ -169,7 +169,4 @@ def with_bias_at_rest(recording: Recording, tuning: ImuTuning) -> tuple[Recordin
             update[key] = value
     if not update:
         return recording, rest
-    meta = recording.meta
-    imu = meta.imu.model_copy(update={"spec": spec.model_copy(update=update)})
-    measured = replace(recording, meta=meta.model_copy(update={"imu": imu}))
-    return measured, replace(rest, taken=tuple(update))
+    return recording.with_imu_figures(update), replace(rest, taken=tuple(update))

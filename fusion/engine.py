@@ -229,8 +229,7 @@ def with_imu_spec(recording: Recording, tuning: ImuTuning) -> Recording:
         figures.update({key: ASSUMED_IMU_SPEC[key] for key in assumed})
     if figures == stated:
         return recording
-    imu = meta.imu.model_copy(update={"spec": ImuSpec(**figures)})
-    return replace(recording, meta=meta.model_copy(update={"imu": imu}))
+    return recording.with_imu_figures(figures)
 
 
 def resolve_imu_noise(tuning: ImuTuning, spec: ImuSpec) -> ImuNoise:

@@ -72,7 +72,7 @@ import os
 import re
 import zlib
 from collections import Counter
-from collections.abc import Callable, Iterable, Iterator, Sequence
+from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Annotated, Any, BinaryIO, Literal, NamedTuple
@@ -659,6 +659,16 @@ class Recording:
         """Time from the first to the last IMU sample (s)."""
         t = self.imu.t
         return float(t[-1] - t[0]) if t.size else 0.0
+
+    def with_imu_figures(self, figures: Mapping[str, float | None]) -> Recording:
+        """This recording with ``figures`` in place of its ``meta.yaml`` ``imu.spec`` figures
+        of the same names (the others kept; a spec made of them where there is none)."""
+        meta = self.meta
+        stated = meta.imu.spec
+        update = dict(figures)
+        spec = stated.model_copy(update=update) if stated is not None else ImuSpec(**update)
+        imu = meta.imu.model_copy(update={"spec": spec})
+        return replace(self, meta=meta.model_copy(update={"imu": imu}))
 
 
 # --------------------------------------------------------------------------------------------

@@ -17,10 +17,10 @@ from fusion.bias_at_rest import DEG_H, MG, measure, with_bias_at_rest
 from fusion.config import ImuTuning, load_config
 from fusion.earth import OMEGA_IE, normal_gravity
 from fusion.engine import Engine
-from fusion.metrics import interpolate_truth
 from fusion.outputs import summary
 from fusion.recording import ImuData, Recording, read_recording
 from fusion.sim.simulate import simulate
+from tests.consistency_support import pooled_horizontal_z
 from tests.plugin_support import recording_meta
 
 RATE = 100.0
@@ -143,19 +143,14 @@ def _beyond(path: Path, factor: float, seed: int) -> Recording:
 
 
 def _pooled_z(config_name: str, recordings: list[Recording], at_rest: bool) -> float:
-    sumsq, count = 0.0, 0
+    runs = []
     for rec in recordings:
         config = load_config(REPO / "configs" / f"{config_name}.yaml")
         config.imu.bias_at_rest = at_rest
         result = Engine(config, rec).run()
         assert (result.rest_bias.taken == ("gyro_bias_deg_h",)) == at_rest
-        assert rec.truth is not None
-        inside, pos, *_ = interpolate_truth(rec.truth, result.solution.t)
-        err = result.solution.position[inside, :2] - pos[:, :2]
-        z = err / result.solution.sigma_position[inside, :2]
-        sumsq += float(np.sum(z**2))
-        count += z.size
-    return math.sqrt(sumsq / count)
+        runs.append((result, rec))
+    return pooled_horizontal_z(runs)
 
 
 @pytest.mark.slow
