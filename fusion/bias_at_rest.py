@@ -12,8 +12,10 @@ the band hides every stop of the run (no ZUPT, no ZARU), and the filter, its bia
 its prior, drifts while its σ promises centimetres (docs/design/2026-12-05-bias-at-rest.md).
 
 At rest the gyros read their bias and the earth's rate, the accelerometers gravity and their
-bias, so over the window of :mod:`fusion.noise_at_rest` (its first :data:`WINDOW_S` seconds,
-at rest by the same test, :func:`fusion.noise_at_rest.start_window`)::
+bias, so over the recording's first seconds at rest (the first of :data:`WINDOWS_S` at rest by
+the test of :mod:`fusion.noise_at_rest`, :func:`fusion.noise_at_rest.start_window`: its 20 s,
+else the first 10 or 5 s of a shorter static start, as a bias needs far fewer samples than a
+noise figure)::
 
     b̂_g = median(ω̃) − C_nᵇ ω_ieⁿ,        ω_ieⁿ = Ω_ie (0, cos L, sin L)   (ENU)
     b̂_a = ‖median(f̃)‖ − g(L, h)
@@ -53,7 +55,7 @@ from fusion.aiding.zupt import BIAS_COVERAGE
 from fusion.attitude import dcm_from_euler
 from fusion.config import ImuTuning
 from fusion.earth import OMEGA_IE, normal_gravity
-from fusion.noise_at_rest import WINDOW_S, start_window
+from fusion.noise_at_rest import WINDOW_S, StartWindow, start_window
 from fusion.recording import Recording
 
 MG = 9.80665e-3
@@ -64,6 +66,10 @@ GRAVITY_ANOMALY_MPS2 = 3e-3
 """How far the site's gravity may lie from the normal gravity at its origin (m/s²): 300 mGal,
 the largest free-air anomalies on land, and more than the normal formula's free-air gradient
 misses underground (0.2 mGal/m of the Bouguer plate: 80 mGal at 400 m)."""
+WINDOWS_S = (WINDOW_S, 10.0, 5.0)
+"""Windows at the start tried in turn (s): the longest at rest is taken. Five seconds of a 100-Hz
+gyro with a datasheet's white noise know its bias to a few degrees per hour, far inside any
+turn-on bias's σ."""
 REST_VELOCITY_FLOOR_MPS = 1e-3
 """Least σ (m/s) given to the recording's initial velocity when asking whether it is zero."""
 _REST_VELOCITY_THRESHOLD = float(chi2.ppf(BIAS_COVERAGE, 3))
@@ -75,6 +81,8 @@ _MEDIAN_EFFICIENCY = math.sqrt(math.pi / 2.0)  # σ of a median of n normal samp
 class RestBias:
     """What the window at the start measured (module docstring)."""
 
+    window_s: float = math.nan
+    """Length of the window at rest measured over (s; NaN: none)."""
     gyro_deg_h: tuple[float, float, float] | None = None
     """``b̂_g`` per body axis (deg/h); None: not measured."""
     accel_mg: float | None = None
@@ -101,7 +109,7 @@ class RestBias:
     def to_dict(self) -> dict[str, object]:
         """For ``metrics.json``."""
         return {
-            "window_s": WINDOW_S,
+            "window_s": _finite(self.window_s),
             "gyro_deg_h": None if self.gyro_deg_h is None else list(self.gyro_deg_h),
             "accel_mg": self.accel_mg,
             "gyro_sigma_deg_h": _finite(self.gyro_sigma_deg_h),
@@ -123,7 +131,7 @@ def measure(recording: Recording) -> RestBias:
     whitened = np.asarray(initial.velocity_enu_mps) / sigma
     if float(whitened @ whitened) > _REST_VELOCITY_THRESHOLD:
         return RestBias(reason="the recording's initial velocity is clear of zero")
-    start = start_window(recording.imu)
+    window_s, start = _at_rest(recording)
     if start.reason:
         return RestBias(reason=start.reason)
     lat = math.radians(meta.origin.lat_deg)
@@ -135,11 +143,21 @@ def measure(recording: Recording) -> RestBias:
     accel = float(np.linalg.norm(median[3:])) - float(normal_gravity(lat, meta.origin.height_m))
     sigma = _MEDIAN_EFFICIENCY * start.white / math.sqrt(start.samples.shape[0])
     return RestBias(
+        window_s=window_s,
         gyro_deg_h=(float(gyro[0]), float(gyro[1]), float(gyro[2])),
         accel_mg=accel / MG,
         gyro_sigma_deg_h=float(np.max(sigma[:3])) / DEG_H,
         accel_sigma_mg=float(np.max(sigma[3:])) / MG,
     )
+
+
+def _at_rest(recording: Recording) -> tuple[float, StartWindow]:
+    """The longest of :data:`WINDOWS_S` at the start that is at rest, else the last tried."""
+    for window_s in WINDOWS_S:
+        start = start_window(recording.imu, window_s)
+        if not start.reason:
+            break
+    return window_s, start
 
 
 def with_bias_at_rest(recording: Recording, tuning: ImuTuning) -> tuple[Recording, RestBias]:

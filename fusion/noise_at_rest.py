@@ -142,14 +142,14 @@ class StartWindow(NamedTuple):
     """Why the window is not at rest (empty when it is)."""
 
 
-def start_window(imu: ImuData) -> StartWindow:
-    """The first :data:`WINDOW_S` seconds of ``imu``, and whether it is at rest there: enough
+def start_window(imu: ImuData, window_s: float = WINDOW_S) -> StartWindow:
+    """The first ``window_s`` seconds of ``imu``, and whether it is at rest there: enough
     samples, noise on every axis, and no axis spread about its median beyond
     :data:`AT_REST_RATIO` × its σ̂_white (module docstring)."""
-    window = imu.t < imu.t[0] + WINDOW_S
+    window = imu.t < imu.t[0] + window_s
     samples = np.hstack([imu.gyro[window], imu.accel[window]])
-    if int(window.sum()) < MIN_SAMPLES or imu.t[-1] - imu.t[0] < WINDOW_S:
-        reason = f"fewer than {MIN_SAMPLES} samples in the first {WINDOW_S:g} s"
+    if int(window.sum()) < MIN_SAMPLES or imu.t[-1] - imu.t[0] < window_s:
+        reason = f"fewer than {MIN_SAMPLES} samples in the first {window_s:g} s"
         return StartWindow(samples, np.full(6, np.nan), math.nan, reason)
     white = robust_sigma(np.diff(samples, axis=0)) / math.sqrt(2.0)  # per sample
     rate = 1.0 / float(np.median(np.diff(imu.t[window])))
@@ -157,7 +157,7 @@ def start_window(imu: ImuData) -> StartWindow:
     if not np.all(white > 0):
         reason = "an axis shows no noise (quantized below its resolution)"
     elif np.any(robust_sigma(samples) > AT_REST_RATIO * white):
-        reason = f"the IMU is not at rest in the first {WINDOW_S:g} s"
+        reason = f"the IMU is not at rest in the first {window_s:g} s"
     return StartWindow(samples, white, rate, reason)
 
 

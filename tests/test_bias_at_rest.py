@@ -113,6 +113,22 @@ def test_a_start_that_is_not_at_rest_measures_nothing() -> None:
     assert "not at rest" in measure(rolled).reason
 
 
+def test_a_short_static_start_is_measured_over_its_first_seconds() -> None:
+    """At rest for 4 s, then rolling: the 20-s and 10-s windows are not at rest, the 5-s one
+    is (its last second moves, which its medians leave out), and a bias beyond the datasheet's
+    is taken from it."""
+    rec = _at_rest((0.0, 0.0, 5000.0))
+    gyro = rec.imu.gyro.copy()
+    moving = rec.imu.t >= 4.0
+    gyro[moving, 0] += 0.02 * np.sin(2 * np.pi * (rec.imu.t[moving] - 4.0) / 4.0)
+    short = replace(rec, imu=ImuData(t=rec.imu.t, gyro=gyro, accel=rec.imu.accel))
+    rest = with_bias_at_rest(short, ImuTuning())[1]
+    assert rest.window_s == 5.0 and rest.taken == ("gyro_bias_deg_h",)
+    assert rest.gyro_deg_h is not None
+    assert rest.gyro_deg_h[2] == pytest.approx(5000.0, abs=4 * rest.gyro_sigma_deg_h)
+    assert measure(rec).window_s == 20.0
+
+
 def test_the_run_reports_what_it_measured_and_took() -> None:
     """The summary's ``IMU bias`` line, ``metrics.json``'s ``imu_bias_at_rest`` and
     ``RunResult.rest_bias``; ``imu.bias_at_rest: false`` measures nothing."""
