@@ -635,8 +635,7 @@ class UwbRanges(Plugin):
         found, height = self._solutions(anchors, ranges, guess, arm_up)
         if not found:
             return None
-        sigma = float(np.max(self.noise_sigma()))
-        options = self.options.least_squares.model_copy(update={"sigma_range_m": sigma})
+        sigma, options = self._fit_noise()
         margin = chi2_threshold(1, self.options.adaptive_screen_probability)
         candidates = _plausible(found, margin, guess)
         best, covariance, cost = candidates[0]
@@ -660,6 +659,12 @@ class UwbRanges(Plugin):
         position, covariance, cost = candidates[kept]
         return position, covariance, cost, ranges.size + (height is not None) - 3
 
+    def _fit_noise(self) -> tuple[float, LeastSquaresOptions]:
+        """The window fits' range σ (the largest of the anchors' noise, learned or fixed) and
+        the least-squares options at it."""
+        sigma = float(np.max(self.noise_sigma()))
+        return sigma, self.options.least_squares.model_copy(update={"sigma_range_m": sigma})
+
     def _solutions(
         self,
         anchors: NDArray[np.float64],
@@ -674,8 +679,7 @@ class UwbRanges(Plugin):
         reach = float(np.max(ranges))
         offset = guess - centre
         start = centre + offset * min(1.0, reach / max(float(np.linalg.norm(offset)), 1e-9))
-        sigma = float(np.max(self.noise_sigma()))
-        options = self.options.least_squares.model_copy(update={"sigma_range_m": sigma})
+        sigma, options = self._fit_noise()
         height = self._face_height(start, arm_up)
         found = _solutions(anchors, ranges, start, height, options, sigma)
         if found and height is not None:  # the face's height where the fit put the tag
