@@ -168,7 +168,8 @@ def with_bias_at_rest(recording: Recording, tuning: ImuTuning) -> tuple[Recordin
     if rest.gyro_deg_h is None or rest.accel_mg is None:
         return recording, rest
     spec = recording.meta.imu.spec
-    assert spec is not None and spec.gyro_bias_deg_h and spec.accel_bias_mg
+    assert spec is not None  # with_imu_spec: every figure given, a zero among them
+    assert spec.gyro_bias_deg_h is not None and spec.accel_bias_mg is not None
     gyro = float(np.max(np.abs(rest.gyro_deg_h)))
     gyro_sigma = math.hypot(spec.gyro_bias_deg_h, rest.gyro_sigma_deg_h)
     accel = abs(rest.accel_mg)

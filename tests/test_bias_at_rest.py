@@ -101,6 +101,16 @@ def test_a_figure_the_configuration_sets_is_left_alone() -> None:
     assert spec is not None and spec.gyro_bias_deg_h == GYRO_BIAS
 
 
+def test_a_datasheet_stating_no_bias_takes_the_measured_one() -> None:
+    """meta.yaml may state a bias of 0 (the format allows it): that covers nothing, and the
+    measured bias is taken instead of failing."""
+    rec = _at_rest((0.0, 0.0, 800.0)).with_imu_figures({"gyro_bias_deg_h": 0.0})
+    measured, rest = with_bias_at_rest(rec, ImuTuning())
+    assert rest.taken == ("gyro_bias_deg_h",)
+    spec = measured.meta.imu.spec
+    assert spec is not None and spec.gyro_bias_deg_h == pytest.approx(800.0, abs=40.0)
+
+
 def test_a_start_that_is_not_at_rest_measures_nothing() -> None:
     """A stated initial velocity clear of zero (its σ is 1 m/s here) or a turn in the window."""
     moving = _at_rest((0.0, 0.0, 5000.0), velocity=(4.0, 1.0, 0.0))
